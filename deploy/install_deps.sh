@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Installs every Debian 12 package Octoscope needs to build, test and run.
+# Idempotent and non-interactive; needs root (or sudo) and Debian's package registry.
+set -euo pipefail
+
+packages=(
+  build-essential cmake ninja-build pkg-config git
+  libtiff-dev libzstd-dev liblzma-dev libdeflate-dev zlib1g-dev libjpeg62-turbo-dev
+  libpugixml-dev nlohmann-json3-dev
+  libboost-dev
+  libturbojpeg0-dev
+  ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
+  libgtest-dev googletest
+  clang libclang-rt-14-dev
+)
+
+# Skip apt entirely when everything is already there (fast re-runs, offline machines).
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
+done
+if ((${#missing[@]} == 0)); then
+  echo "install_deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+sudo_cmd=()
+if [[ $(id -u) -ne 0 ]]; then sudo_cmd=(sudo); fi
+export DEBIAN_FRONTEND=noninteractive
+echo "install_deps: installing ${missing[*]}"
+"${sudo_cmd[@]}" apt-get update -q
+"${sudo_cmd[@]}" apt-get install -y -q --no-install-recommends "${missing[@]}"

@@ -1,0 +1,98 @@
+// TiffFile: one open TIFF or BigTIFF file (either byte order) with an index of all its IFDs,
+// built once at open, so any plane can be decoded without walking the IFD chain again (OME-TIFF
+// writers such as Micro-Manager put IFDs anywhere in the file). The only class that talks to
+// libtiff; libtiff's error and warning handlers are routed into the Status of the failing call.
+//
+// Decoding supports strips and tiles, every compression this libtiff decodes, chunky and planar
+// samples, and the sample types of volume::DataType. Sizes declared by the file are checked
+// against Limits and the file size before anything is allocated; IFD loops are refused.
+//
+// Thread safety: thread-safe. Decoding calls are serialized by an internal mutex (a libtiff
+// handle is not reentrant); the index is immutable after Open.
+#ifndef OCTOSCOPE_IO_TIFF_FILE_H_
+#define OCTOSCOPE_IO_TIFF_FILE_H_
+
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "util/result.h"
+#include "volume/data_type.h"
+
+namespace octoscope::io {
+
+// What Octoscope needs to know about one IFD (one page of the file).
+struct TiffIfd {
+  uint64_t offset = 0;  // Byte offset of the IFD in the file.
+  uint32_t width = 0;
+  uint32_t height = 0;
+  uint16_t samples_per_pixel = 1;
+  uint16_t bits_per_sample = 8;
+  uint16_t sample_format = 1;    // SAMPLEFORMAT_UINT etc.
+  uint16_t planar_config = 1;    // 1 chunky (contiguous), 2 planar (separate).
+  uint16_t compression = 1;      // COMPRESSION_*.
+  uint16_t photometric = 1;
+  bool tiled = false;
+  std::optional<volume::DataType> dtype;  // nullopt: a sample layout we cannot decode.
+  std::string description;                // ImageDescription; "" when absent.
+  // XResolution / YResolution (pixels per unit) and ResolutionUnit (1 none, 2 inch, 3 cm).
+  std::optional<double> x_resolution;
+  std::optional<double> y_resolution;
+  uint16_t resolution_unit = 2;
+};
+
+class TiffFile {
+ public:
+  struct Limits {
+    uint64_t max_plane_bytes = uint64_t{4} << 30;  // One decoded plane of one sample.
+    uint32_t max_ifds = 1u << 20;
+  };
+
+  // Opens `path` and indexes every IFD. Errors: not a TIFF, truncated, IFD loop, more IFDs
+  // than Limits allow, a plane larger than Limits allow.
+  static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path,
+                                                const Limits& limits);
+  static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path) {
+    return Open(path, Limits{});
+  }
+  ~TiffFile();
+  TiffFile(const TiffFile&) = delete;
+  TiffFile& operator=(const TiffFile&) = delete;
+
+  const std::filesystem::path& path() const { return path_; }
+  bool big_tiff() const { return big_tiff_; }
+  bool big_endian() const { return big_endian_; }
+  uint64_t file_size() const { return file_size_; }
+  int ifd_count() const { return static_cast<int>(ifds_.size()); }
+  // REQUIRES: 0 <= index < ifd_count().
+  const TiffIfd& ifd(int index) const { return ifds_[index]; }
+
+  // Decodes sample `sample` of IFD `index` into `out`: width*height samples, row-major, in the
+  // IFD's dtype and native byte order.
+  // REQUIRES: out.size() == width * height * BytesPerSample(*dtype).
+  Status ReadPlane(int index, int sample, std::span<std::byte> out);
+
+ private:
+  struct Impl;
+  TiffFile() = default;
+
+  std::filesystem::path path_;
+  bool big_tiff_ = false;
+  bool big_endian_ = false;
+  uint64_t file_size_ = 0;
+  std::vector<TiffIfd> ifds_;
+  std::mutex mutex_;
+  std::unique_ptr<Impl> impl_;  // GUARDED_BY(mutex_) for decoding.
+};
+
+// True when the file starts with a TIFF or BigTIFF signature (either byte order).
+bool HasTiffSignature(const std::filesystem::path& path);
+
+}  // namespace octoscope::io
+
+#endif  // OCTOSCOPE_IO_TIFF_FILE_H_

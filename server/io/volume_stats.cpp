@@ -1,0 +1,206 @@
+#include "io/volume_stats.h"
+
+#include <algorithm>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <limits>
+#include <mutex>
+#include <optional>
+#include <thread>
+
+namespace octoscope::io {
+namespace {
+
+using volume::DataType;
+// Integer sums of up to 2^64 voxels of 32-bit values need more than 64 bits.
+__extension__ typedef __int128 Int128;
+
+// Running sums for one channel. Integer types sum exactly in 128 bits; floats use Neumaier's
+// compensated sum so a long run of small values after a large one is not lost.
+struct Accumulator {
+  double min = std::numeric_limits<double>::infinity();
+  double max = -std::numeric_limits<double>::infinity();
+  Int128 int_sum = 0;
+  double float_sum = 0;
+  double float_comp = 0;
+  uint64_t count = 0;
+  uint64_t nan_count = 0;
+};
+
+// Integer samples: chunks small enough that a 64-bit partial sum cannot overflow, so the inner
+// loop is plain adds/min/max the compiler vectorises.
+template <typename T>
+void AccumulateInts(const std::byte* data, size_t n, Accumulator& acc) {
+  const T* v = reinterpret_cast<const T*>(data);
+  constexpr size_t kChunk = 1 << 16;
+  for (size_t start = 0; start < n; start += kChunk) {
+    size_t end = std::min(n, start + kChunk);
+    T lo = v[start], hi = v[start];
+    int64_t sum = 0;
+    for (size_t i = start; i < end; ++i) {
+      lo = std::min(lo, v[i]);
+      hi = std::max(hi, v[i]);
+      sum += v[i];
+    }
+    acc.min = std::min(acc.min, static_cast<double>(lo));
+    acc.max = std::max(acc.max, static_cast<double>(hi));
+    acc.int_sum += sum;
+  }
+  acc.count += n;
+}
+
+template <typename T>
+void AccumulateFloats(const std::byte* data, size_t n, Accumulator& acc) {
+  const T* v = reinterpret_cast<const T*>(data);
+  for (size_t i = 0; i < n; ++i) {
+    double x = static_cast<double>(v[i]);
+    if (std::isnan(x)) {
+      ++acc.nan_count;
+      continue;
+    }
+    acc.min = std::min(acc.min, x);
+    acc.max = std::max(acc.max, x);
+    // Neumaier: keep the low-order bits that the addition loses.
+    double t = acc.float_sum + x;
+    if (std::fabs(acc.float_sum) >= std::fabs(x)) {
+      acc.float_comp += (acc.float_sum - t) + x;
+    } else {
+      acc.float_comp += (x - t) + acc.float_sum;
+    }
+    acc.float_sum = t;
+    ++acc.count;
+  }
+}
+
+void Accumulate(DataType type, const std::byte* data, size_t n, Accumulator& acc) {
+  switch (type) {
+    case DataType::kUint8: return AccumulateInts<uint8_t>(data, n, acc);
+    case DataType::kInt8: return AccumulateInts<int8_t>(data, n, acc);
+    case DataType::kUint16: return AccumulateInts<uint16_t>(data, n, acc);
+    case DataType::kInt16: return AccumulateInts<int16_t>(data, n, acc);
+    case DataType::kUint32: return AccumulateInts<uint32_t>(data, n, acc);
+    case DataType::kInt32: return AccumulateInts<int32_t>(data, n, acc);
+    case DataType::kFloat32: return AccumulateFloats<float>(data, n, acc);
+    case DataType::kFloat64: return AccumulateFloats<double>(data, n, acc);
+  }
+}
+
+// One slab read by the reader thread, handed to the accumulating thread.
+struct Slab {
+  int channel = 0;
+  int64_t z0 = 0;
+  int64_t nz = 0;
+  std::vector<std::byte> data;
+};
+
+}  // namespace
+
+Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions& options) {
+  const volume::VolumeInfo& info = source.info();
+  const uint64_t plane_bytes = source.SlabBytes(1);
+  const int64_t planes_per_slab = static_cast<int64_t>(
+      std::clamp<uint64_t>(options.slab_bytes / std::max<uint64_t>(plane_bytes, 1), 1,
+                           static_cast<uint64_t>(info.size[2])));
+  const int channels = info.channel_count();
+  const uint64_t total_planes = static_cast<uint64_t>(info.size[2]) * channels;
+
+  // Two buffers in flight: the reader fills one while this thread sums the other.
+  std::mutex mutex;
+  std::condition_variable cv;
+  std::optional<Slab> full;       // GUARDED_BY(mutex): ready for summing.
+  std::vector<Slab> empty(2);     // GUARDED_BY(mutex): free buffers.
+  bool reader_done = false;       // GUARDED_BY(mutex)
+  bool stop = false;              // GUARDED_BY(mutex): set when the consumer gives up.
+  Status read_status;             // GUARDED_BY(mutex)
+
+  std::thread reader([&] {
+    // z-major order keeps channel-interleaved files (one IFD per z and channel) sequential.
+    for (int64_t z0 = 0; z0 < info.size[2]; z0 += planes_per_slab) {
+      int64_t nz = std::min(planes_per_slab, info.size[2] - z0);
+      for (int c = 0; c < channels; ++c) {
+        Slab slab;
+        {
+          std::unique_lock lock(mutex);
+          cv.wait(lock, [&] { return !empty.empty() || stop; });
+          if (stop) return;
+          slab = std::move(empty.back());
+          empty.pop_back();
+        }
+        slab.channel = c;
+        slab.z0 = z0;
+        slab.nz = nz;
+        slab.data.resize(source.SlabBytes(nz));
+        Status s = source.ReadSlab(c, z0, nz, slab.data);
+        std::unique_lock lock(mutex);
+        if (!s.ok()) {
+          read_status = s;
+          reader_done = true;
+          cv.notify_all();
+          return;
+        }
+        cv.wait(lock, [&] { return !full.has_value() || stop; });
+        if (stop) return;
+        full = std::move(slab);
+        cv.notify_all();
+      }
+    }
+    std::lock_guard lock(mutex);
+    reader_done = true;
+    cv.notify_all();
+  });
+
+  std::vector<Accumulator> acc(channels);
+  uint64_t planes_done = 0;
+  Status status;
+  while (true) {
+    Slab slab;
+    {
+      std::unique_lock lock(mutex);
+      cv.wait(lock, [&] { return full.has_value() || reader_done; });
+      if (!full.has_value()) {
+        status = read_status;
+        break;
+      }
+      slab = std::move(*full);
+      full.reset();
+      cv.notify_all();
+    }
+    Accumulate(info.dtype, slab.data.data(), slab.data.size() / volume::BytesPerSample(info.dtype),
+               acc[slab.channel]);
+    planes_done += slab.nz;
+    if (options.progress) options.progress(planes_done, total_planes);
+    std::lock_guard lock(mutex);
+    empty.push_back(std::move(slab));
+    cv.notify_all();
+  }
+  {
+    std::lock_guard lock(mutex);
+    stop = true;
+    cv.notify_all();
+  }
+  reader.join();
+  if (!status.ok()) return status;
+
+  VolumeStats stats;
+  for (const Accumulator& a : acc) {
+    ChannelStats c;
+    c.count = a.count;
+    c.nan_count = a.nan_count;
+    if (a.count > 0) {
+      c.min = a.min;
+      c.max = a.max;
+      c.mean = volume::IsFloat(info.dtype)
+                   ? (a.float_sum + a.float_comp) / static_cast<double>(a.count)
+                   // Exact integer sum, one rounding in the division (long double keeps 64 bits).
+                   : static_cast<double>(static_cast<long double>(a.int_sum) /
+                                         static_cast<long double>(a.count));
+    } else {
+      c.min = c.max = c.mean = std::numeric_limits<double>::quiet_NaN();
+    }
+    stats.channels.push_back(c);
+  }
+  return stats;
+}
+
+}  // namespace octoscope::io

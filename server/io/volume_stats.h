@@ -1,0 +1,43 @@
+// VolumeStats: per-channel minimum, maximum and mean of every voxel of a VolumeSource, in the
+// file's own units, computed by streaming the source slab by slab (memory: two slabs).
+// Integer means are exact (integer sums, one division); float means use compensated (Neumaier)
+// summation, accurate to a few units in the last place of a double. NaNs are counted, not summed.
+//
+// Thread safety: ComputeVolumeStats reads the source from one helper thread while the calling
+// thread accumulates; the source must be thread-safe (all VolumeSources are).
+#ifndef OCTOSCOPE_IO_VOLUME_STATS_H_
+#define OCTOSCOPE_IO_VOLUME_STATS_H_
+
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "io/volume_source.h"
+#include "util/result.h"
+
+namespace octoscope::io {
+
+struct ChannelStats {
+  double min = 0;
+  double max = 0;
+  double mean = 0;
+  uint64_t count = 0;      // Voxels that entered min/max/mean.
+  uint64_t nan_count = 0;  // Float NaNs (excluded from the above).
+};
+
+struct VolumeStats {
+  std::vector<ChannelStats> channels;
+};
+
+struct StatsOptions {
+  // Target bytes per slab read (rounded to whole planes, at least one plane).
+  uint64_t slab_bytes = uint64_t{64} << 20;
+  // Called after each slab with (planes done, planes total) over all channels.
+  std::function<void(uint64_t, uint64_t)> progress;
+};
+
+Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions& options);
+
+}  // namespace octoscope::io
+
+#endif  // OCTOSCOPE_IO_VOLUME_STATS_H_

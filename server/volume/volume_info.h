@@ -1,0 +1,57 @@
+// VolumeInfo: what a volume source knows about its scan before any voxel is read — extent,
+// channels, sample type, physical spacing, and which series/time point of the file it shows.
+//
+// Invariants (checked by Validate()): every size >= 1; channels non-empty; spacing, where known,
+// finite and > 0; 0 <= series < series_count; 0 <= time < time_points.
+//
+// Thread safety: a plain value type.
+#ifndef OCTOSCOPE_VOLUME_VOLUME_INFO_H_
+#define OCTOSCOPE_VOLUME_VOLUME_INFO_H_
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "util/status.h"
+#include "volume/data_type.h"
+
+namespace octoscope::volume {
+
+// An sRGB display colour with alpha, 8 bits each.
+struct Rgba {
+  uint8_t r = 255, g = 255, b = 255, a = 255;
+  bool operator==(const Rgba&) const = default;
+};
+
+struct ChannelInfo {
+  std::string name;            // As the file names it; "" when unnamed.
+  std::optional<Rgba> color;   // As the file gives it; nullopt when none.
+};
+
+struct VolumeInfo {
+  std::string format;                    // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw".
+  std::array<int64_t, 3> size{1, 1, 1};  // Voxels along x, y, z.
+  std::vector<ChannelInfo> channels;
+  DataType dtype = DataType::kUint16;    // The file's sample type.
+  std::array<std::optional<double>, 3> spacing_um;  // Voxel pitch in micrometres, x, y, z.
+  int series_count = 1;
+  int series = 0;
+  int time_points = 1;
+  int time = 0;
+
+  int channel_count() const { return static_cast<int>(channels.size()); }
+  // Voxels in one xy plane of one channel.
+  uint64_t PlaneVoxels() const { return static_cast<uint64_t>(size[0]) * size[1]; }
+  // Bytes of voxel data of the selected series and time point, all channels, in dtype.
+  uint64_t VoxelBytes() const;
+
+  // Checks the invariants above (plus overflow-free byte counts).
+  Status Validate() const;
+  std::string ToString() const;
+};
+
+}  // namespace octoscope::volume
+
+#endif  // OCTOSCOPE_VOLUME_VOLUME_INFO_H_

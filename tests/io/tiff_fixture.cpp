@@ -1,0 +1,140 @@
+#include "io/tiff_fixture.h"
+
+#include <gtest/gtest.h>
+#include <tiffio.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <random>
+
+namespace octoscope::testing {
+namespace {
+
+// Stores `v` as the sample type described by bits/format into `out`.
+void StoreSample(double v, uint16_t bits, uint16_t format, uint8_t* out) {
+  if (format == SAMPLEFORMAT_IEEEFP) {
+    if (bits == 32) { float f = static_cast<float>(v); std::memcpy(out, &f, 4); }
+    else { std::memcpy(out, &v, 8); }
+    return;
+  }
+  if (format == SAMPLEFORMAT_INT) {
+    int64_t i = static_cast<int64_t>(v);
+    if (bits == 8) { int8_t x = static_cast<int8_t>(i); std::memcpy(out, &x, 1); }
+    if (bits == 16) { int16_t x = static_cast<int16_t>(i); std::memcpy(out, &x, 2); }
+    if (bits == 32) { int32_t x = static_cast<int32_t>(i); std::memcpy(out, &x, 4); }
+    return;
+  }
+  uint64_t u = static_cast<uint64_t>(v);
+  if (bits == 8) { uint8_t x = static_cast<uint8_t>(u); std::memcpy(out, &x, 1); }
+  if (bits == 16) { uint16_t x = static_cast<uint16_t>(u); std::memcpy(out, &x, 2); }
+  if (bits == 32) { uint32_t x = static_cast<uint32_t>(u); std::memcpy(out, &x, 4); }
+}
+
+}  // namespace
+
+double DefaultPattern(uint32_t x, uint32_t y, int page, int sample) {
+  // Distinct per coordinate, wraps through the whole 8/16-bit range.
+  return static_cast<double>((x * 7 + y * 131 + page * 1031 + sample * 15013) % 65536);
+}
+
+bool WriteTiffFixture(const std::filesystem::path& path, const TiffFixtureSpec& spec,
+                      const VoxelValue& value) {
+  std::string mode = "w";
+  mode += spec.big_tiff ? "8" : "";
+  mode += spec.big_endian ? "b" : "l";
+  TIFF* tif = TIFFOpen(path.c_str(), mode.c_str());
+  if (!tif) {
+    ADD_FAILURE() << "TIFFOpen(" << path << ") failed";
+    return false;
+  }
+  const int bytes = spec.bits_per_sample / 8;
+  const int spp = spec.samples_per_pixel;
+  bool ok = true;
+  for (int page = 0; page < spec.pages && ok; ++page) {
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, spec.width);
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, spec.height);
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, spp);
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, spec.bits_per_sample);
+    TIFFSetField(tif, TIFFTAG_SAMPLEFORMAT, spec.sample_format);
+    TIFFSetField(tif, TIFFTAG_PLANARCONFIG, spec.planar_config);
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, spp == 3 ? PHOTOMETRIC_RGB : PHOTOMETRIC_MINISBLACK);
+    if (spp > 1 && spp != 3) {
+      std::vector<uint16_t> extra(spp - 1, EXTRASAMPLE_UNSPECIFIED);
+      TIFFSetField(tif, TIFFTAG_EXTRASAMPLES, spp - 1, extra.data());
+    }
+    TIFFSetField(tif, TIFFTAG_COMPRESSION, spec.compression);
+    if (spec.predictor != 1) TIFFSetField(tif, TIFFTAG_PREDICTOR, spec.predictor);
+    if (spec.x_resolution > 0) {
+      TIFFSetField(tif, TIFFTAG_XRESOLUTION, spec.x_resolution);
+      TIFFSetField(tif, TIFFTAG_YRESOLUTION, spec.y_resolution);
+      TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, spec.resolution_unit);
+    }
+    if (page < static_cast<int>(spec.descriptions.size()) && !spec.descriptions[page].empty()) {
+      TIFFSetField(tif, TIFFTAG_IMAGEDESCRIPTION, spec.descriptions[page].c_str());
+    }
+    if (spec.pages > 1) {
+      TIFFSetField(tif, TIFFTAG_SUBFILETYPE, FILETYPE_PAGE);
+      TIFFSetField(tif, TIFFTAG_PAGENUMBER, page, spec.pages);
+    }
+    // Fill one whole plane in memory in the file's sample layout, then write it in pieces.
+    const int planes = spec.planar_config == PLANARCONFIG_SEPARATE ? spp : 1;
+    const int per_pixel = spec.planar_config == PLANARCONFIG_SEPARATE ? 1 : spp;
+    std::vector<std::vector<uint8_t>> plane(planes, std::vector<uint8_t>(
+        static_cast<size_t>(spec.width) * spec.height * per_pixel * bytes));
+    for (int p = 0; p < planes; ++p) {
+      for (uint32_t y = 0; y < spec.height; ++y) {
+        for (uint32_t x = 0; x < spec.width; ++x) {
+          for (int s = 0; s < per_pixel; ++s) {
+            int sample = planes > 1 ? p : s;
+            size_t at = ((static_cast<size_t>(y) * spec.width + x) * per_pixel + s) * bytes;
+            StoreSample(value(x, y, page, sample), spec.bits_per_sample, spec.sample_format,
+                        &plane[p][at]);
+          }
+        }
+      }
+    }
+    const size_t row_bytes = static_cast<size_t>(spec.width) * per_pixel * bytes;
+    if (spec.tile_width > 0) {
+      TIFFSetField(tif, TIFFTAG_TILEWIDTH, spec.tile_width);
+      TIFFSetField(tif, TIFFTAG_TILELENGTH, spec.tile_height);
+      std::vector<uint8_t> tile(static_cast<size_t>(spec.tile_width) * spec.tile_height *
+                                per_pixel * bytes);
+      for (int p = 0; p < planes && ok; ++p) {
+        for (uint32_t ty = 0; ty < spec.height && ok; ty += spec.tile_height) {
+          for (uint32_t tx = 0; tx < spec.width && ok; tx += spec.tile_width) {
+            std::fill(tile.begin(), tile.end(), 0);
+            for (uint32_t y = ty; y < std::min(spec.height, ty + spec.tile_height); ++y) {
+              for (uint32_t x = tx; x < std::min(spec.width, tx + spec.tile_width); ++x) {
+                std::memcpy(&tile[((y - ty) * spec.tile_width + (x - tx)) * per_pixel * bytes],
+                            &plane[p][y * row_bytes + x * per_pixel * bytes], per_pixel * bytes);
+              }
+            }
+            ok = TIFFWriteTile(tif, tile.data(), tx, ty, 0, static_cast<uint16_t>(p)) >= 0;
+          }
+        }
+      }
+    } else {
+      TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, spec.rows_per_strip);
+      for (int p = 0; p < planes && ok; ++p) {
+        for (uint32_t y = 0; y < spec.height && ok; ++y) {
+          ok = TIFFWriteScanline(tif, &plane[p][y * row_bytes], y, static_cast<uint16_t>(p)) >= 0;
+        }
+      }
+    }
+    ok = ok && TIFFWriteDirectory(tif);
+  }
+  TIFFClose(tif);
+  if (!ok) ADD_FAILURE() << "writing " << path << " failed";
+  return ok;
+}
+
+std::filesystem::path MakeTempDir(const std::string& name) {
+  std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                              ("octoscope-test-" + name + "-" + std::to_string(getpid()) + "-" +
+                               std::to_string(std::random_device{}()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+}  // namespace octoscope::testing
