@@ -1,0 +1,608 @@
+#include "io/ome_tiff_volume.h"
+
+#include <algorithm>
+#include <fstream>
+#include <list>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <system_error>
+#include <utility>
+#include <vector>
+
+#include "io/ome_xml.h"
+#include "io/tiff_file.h"
+#include "util/checked_math.h"
+#include "util/strings.h"
+
+namespace octoscope::io {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Planes (z, c, t) one series may declare: bounds the work of walking TiffData at open (a few
+// seconds at worst). Real series have at most millions of planes.
+constexpr uint64_t kMaxPlanesPerSeries = uint64_t{1} << 28;
+// Planes (z, c) of one time point: bounds the plane table (8 bytes each) built at open.
+constexpr uint64_t kMaxPlanesPerTimePoint = uint64_t{1} << 22;
+// Channels of one series (hyperspectral scans have hundreds).
+constexpr int64_t kMaxChannels = int64_t{1} << 16;
+
+// The largest TIFF page index accepted (TiffFile refuses far fewer IFDs anyway).
+constexpr int64_t kMaxIfdIndex = (int64_t{1} << 31) - 1;
+
+std::string Quote(const fs::path& path) { return path.string(); }
+
+// ----------------------------------------------------------------------------------------------
+// Plane order.
+
+// The three non-XY dimensions of `order` from fastest to slowest, as 0 = Z, 1 = C, 2 = T.
+std::array<int, 3> AxisOrder(DimensionOrder order) {
+  std::string_view name = DimensionOrderName(order);
+  std::array<int, 3> axes{};
+  for (int k = 0; k < 3; ++k) {
+    char letter = name[2 + k];
+    axes[k] = letter == 'Z' ? 0 : letter == 'C' ? 1 : 2;
+  }
+  return axes;
+}
+
+// Converts between a plane index and (z, c, t) for one DimensionOrder and extent.
+class PlaneOrder {
+ public:
+  PlaneOrder(DimensionOrder order, std::array<int64_t, 3> sizes_zct)
+      : axes_(AxisOrder(order)), sizes_(sizes_zct) {}
+
+  // REQUIRES: 0 <= zct[i] < sizes[i].
+  uint64_t Index(std::array<int64_t, 3> zct) const {
+    uint64_t index = 0;
+    for (int k = 2; k >= 0; --k) {
+      index =
+          index * static_cast<uint64_t>(sizes_[axes_[k]]) + static_cast<uint64_t>(zct[axes_[k]]);
+    }
+    return index;
+  }
+
+  // REQUIRES: index < product of sizes.
+  std::array<int64_t, 3> Coordinates(uint64_t index) const {
+    std::array<int64_t, 3> zct{};
+    for (int k = 0; k < 3; ++k) {
+      uint64_t size = static_cast<uint64_t>(sizes_[axes_[k]]);
+      zct[axes_[k]] = static_cast<int64_t>(index % size);
+      index /= size;
+    }
+    return zct;
+  }
+
+ private:
+  std::array<int, 3> axes_;
+  std::array<int64_t, 3> sizes_;
+};
+
+// ----------------------------------------------------------------------------------------------
+// Open files.
+
+// A bounded set of open TIFF files, least recently used evicted first. Handles are shared, so an
+// evicted file stays open until the reads using it finish.
+class TiffFileCache {
+ public:
+  TiffFileCache(TiffFile::Limits limits, size_t capacity) : limits_(limits), capacity_(capacity) {}
+
+  Result<std::shared_ptr<TiffFile>> Get(const fs::path& path) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (std::shared_ptr<TiffFile> file = FindLocked(path)) return file;
+    }
+    // Open outside the lock: indexing a file takes a while and other files may be read meanwhile.
+    Result<std::unique_ptr<TiffFile>> opened = TiffFile::Open(path, limits_);
+    if (!opened.ok()) return opened.status();
+    std::shared_ptr<TiffFile> file(std::move(opened).value());
+    Put(path, file);
+    return file;
+  }
+
+  void Put(const fs::path& path, std::shared_ptr<TiffFile> file) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (FindLocked(path)) return;  // Another thread opened it first; keep one handle.
+    entries_.emplace_front(path, std::move(file));
+    while (entries_.size() > capacity_) entries_.pop_back();
+  }
+
+ private:
+  std::shared_ptr<TiffFile> FindLocked(const fs::path& path) {
+    for (auto it = entries_.begin(); it != entries_.end(); ++it) {
+      if (it->first == path) {
+        entries_.splice(entries_.begin(), entries_, it);
+        return entries_.front().second;
+      }
+    }
+    return nullptr;
+  }
+
+  const TiffFile::Limits limits_;
+  const size_t capacity_;
+  std::mutex mutex_;
+  // Most recently used first. GUARDED_BY(mutex_).
+  std::list<std::pair<fs::path, std::shared_ptr<TiffFile>>> entries_;
+};
+
+// ----------------------------------------------------------------------------------------------
+// The source.
+
+// Where one plane of one channel group lives.
+struct PlaneRef {
+  int file = -1;  // Index into OmeTiffVolume::files_; -1: not mapped.
+  int ifd = 0;
+};
+
+// A run of C indices stored together: one OME Channel (samples_per_pixel > 1 for RGB-style).
+struct ChannelGroup {
+  int samples_per_pixel = 1;
+  std::string name;
+  std::optional<volume::Rgba> color;
+};
+
+class OmeTiffVolume final : public VolumeSource {
+ public:
+  OmeTiffVolume(volume::VolumeInfo info, std::vector<fs::path> files, std::vector<PlaneRef> planes,
+                std::vector<std::pair<int, int>> channel_map, std::shared_ptr<TiffFileCache> cache)
+      : info_(std::move(info)),
+        files_(std::move(files)),
+        planes_(std::move(planes)),
+        channel_map_(std::move(channel_map)),
+        cache_(std::move(cache)) {}
+
+  const volume::VolumeInfo& info() const override { return info_; }
+
+  Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    const auto [group, sample] = channel_map_[channel];
+    const size_t plane_bytes = info_.PlaneVoxels() * volume::BytesPerSample(info_.dtype);
+    for (int64_t k = 0; k < nz; ++k) {
+      const int64_t z = z0 + k;
+      const PlaneRef& ref = planes_[static_cast<size_t>(group) * info_.size[2] + z];
+      const fs::path& path = files_[ref.file];
+      Result<std::shared_ptr<TiffFile>> file = cache_->Get(path);
+      if (!file.ok()) return file.status();
+      // An evicted file is reopened here: re-check the page in case the file changed on disk.
+      if (ref.ifd >= (*file)->ifd_count() || (*file)->ifd(ref.ifd).width != info_.size[0] ||
+          (*file)->ifd(ref.ifd).height != info_.size[1] ||
+          (*file)->ifd(ref.ifd).dtype != info_.dtype) {
+        return CorruptError(Quote(path) + ": IFD " + std::to_string(ref.ifd) +
+                            " no longer matches the OME-XML (file changed since it was opened)");
+      }
+      Status status = (*file)->ReadPlane(
+          ref.ifd, sample, out.subspan(static_cast<size_t>(k) * plane_bytes, plane_bytes));
+      if (!status.ok()) {
+        return status.WithContext(Quote(path) + ": IFD " + std::to_string(ref.ifd) + " (plane z " +
+                                  std::to_string(z) + ", channel " + std::to_string(channel) + ")");
+      }
+    }
+    return Status::Ok();
+  }
+
+ private:
+  const volume::VolumeInfo info_;
+  const std::vector<fs::path> files_;
+  // planes_[group * size_z + z] for the selected series and time point; every entry mapped.
+  const std::vector<PlaneRef> planes_;
+  // channel -> (group, sample within the group's pages).
+  const std::vector<std::pair<int, int>> channel_map_;
+  const std::shared_ptr<TiffFileCache> cache_;
+};
+
+// ----------------------------------------------------------------------------------------------
+// Opening.
+
+// Where the OME-XML came from: a TIFF's first ImageDescription or a companion XML file.
+struct XmlDocument {
+  OmeMetadata metadata;
+  fs::path source;  // The file holding the XML.
+  bool in_tiff = false;
+};
+
+Result<std::string> ReadTextFile(const fs::path& path) {
+  std::error_code ec;
+  uint64_t size = fs::file_size(path, ec);
+  if (ec) return IoError(Quote(path) + ": cannot read: " + ec.message());
+  if (size > kMaxOmeXmlBytes) {
+    return ResourceExhaustedError(Quote(path) + ": OME-XML file of " + std::to_string(size) +
+                                  " bytes exceeds the limit of " + std::to_string(kMaxOmeXmlBytes));
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return IoError(Quote(path) + ": cannot open");
+  std::string text(static_cast<size_t>(size), '\0');
+  in.read(text.data(), static_cast<std::streamsize>(size));
+  if (static_cast<uint64_t>(in.gcount()) != size) return IoError(Quote(path) + ": short read");
+  return text;
+}
+
+// Loads the OME-XML held by `path` (a TIFF or an XML file) without following references.
+Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache) {
+  std::error_code ec;
+  if (!fs::is_regular_file(path, ec)) {
+    return NotFoundError(Quote(path) + ": no such file");
+  }
+  XmlDocument doc;
+  doc.source = path;
+  std::string xml;
+  if (HasTiffSignature(path)) {
+    doc.in_tiff = true;
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, cache.Get(path));
+    if (file->ifd_count() < 1) return CorruptError(Quote(path) + ": TIFF without pages");
+    xml = file->ifd(0).description;
+    if (!LooksLikeOmeXml(xml)) {
+      return UnsupportedError(Quote(path) + ": not an OME-TIFF (no OME-XML in ImageDescription)");
+    }
+  } else {
+    OCTO_ASSIGN_OR_RETURN(xml, ReadTextFile(path));
+    if (!LooksLikeOmeXml(xml)) {
+      return UnsupportedError(Quote(path) + ": neither a TIFF nor an OME-XML document");
+    }
+  }
+  OCTO_ASSIGN_OR_RETURN(doc.metadata, ParseOmeXml(xml, Quote(path)));
+  return doc;
+}
+
+// Loads the document with the full metadata for `path`, following a BinaryOnly reference once.
+Result<XmlDocument> LoadMetadata(const fs::path& path, TiffFileCache& cache) {
+  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadXml(path, cache));
+  if (!doc.metadata.binary_only) return doc;
+  fs::path master =
+      (path.parent_path() / doc.metadata.binary_only->metadata_file).lexically_normal();
+  Result<XmlDocument> followed = LoadXml(master, cache);
+  if (!followed.ok()) {
+    return followed.status().WithContext(Quote(path) + ": metadata file named by BinaryOnly");
+  }
+  if (followed->metadata.binary_only) {
+    return CorruptError(Quote(master) + ": BinaryOnly metadata file " + Quote(path) +
+                        " points to is itself only a reference");
+  }
+  return followed;
+}
+
+// Resolves TiffData elements to files, deduplicated.
+class FileResolver {
+ public:
+  FileResolver(const XmlDocument& doc, const OmePixels& pixels) : doc_(doc) {
+    // UUIDs named together with a FileName anywhere in the image let bare UUIDs be resolved.
+    for (const OmeTiffData& td : pixels.tiff_data) {
+      if (!td.uuid.empty() && !td.file_name.empty()) {
+        uuid_files_.emplace(td.uuid, td.file_name);
+      }
+    }
+  }
+
+  // The index into files() of the file holding `td`'s planes.
+  Result<int> Resolve(const OmeTiffData& td) {
+    const bool own_uuid = !td.uuid.empty() && td.uuid == doc_.metadata.uuid;
+    if (doc_.in_tiff && (own_uuid || (td.uuid.empty() && td.file_name.empty()))) {
+      // The file holding the XML (robust against the file having been renamed).
+      return Add(doc_.source);
+    }
+    std::string name = td.file_name;
+    if (name.empty() && !td.uuid.empty()) {
+      auto it = uuid_files_.find(td.uuid);
+      if (it == uuid_files_.end()) {
+        return NotFoundError(Quote(doc_.source) + ": TiffData UUID " + Printable(td.uuid) +
+                             " names no known file");
+      }
+      name = it->second;
+    }
+    if (name.empty()) {
+      return CorruptError(Quote(doc_.source) + ": TiffData names no file (no UUID/FileName)");
+    }
+    return Add((doc_.source.parent_path() / name).lexically_normal());
+  }
+
+  const std::vector<fs::path>& files() const { return files_; }
+
+ private:
+  int Add(const fs::path& path) {
+    auto [it, inserted] = index_.emplace(path.string(), static_cast<int>(files_.size()));
+    if (inserted) files_.push_back(path);
+    return it->second;
+  }
+
+  const XmlDocument& doc_;
+  std::map<std::string, std::string> uuid_files_;
+  std::map<std::string, int> index_;
+  std::vector<fs::path> files_;
+};
+
+// One TiffData resolved: planes [start, start + count) of the series lie in IFDs
+// [ifd, ifd + count) of files[file].
+struct PlaneRun {
+  int file = 0;
+  int64_t ifd = 0;
+  uint64_t start = 0;
+  uint64_t count = 0;
+};
+
+std::string ZctName(const std::array<int64_t, 3>& zct) {
+  return "z " + std::to_string(zct[0]) + ", c " + std::to_string(zct[1]) + ", t " +
+         std::to_string(zct[2]);
+}
+
+// Builds the channel groups: one per Channel when their SamplesPerPixel add up to SizeC, else
+// groups of the sample count of the first page (or single samples).
+std::vector<ChannelGroup> MakeChannelGroups(const OmePixels& pixels, int first_page_samples) {
+  std::vector<ChannelGroup> groups;
+  int64_t sum = 0;
+  for (const OmeChannel& ch : pixels.channels) sum += ch.samples_per_pixel.value_or(1);
+  if (!pixels.channels.empty() && sum == pixels.size_c) {
+    for (const OmeChannel& ch : pixels.channels) {
+      groups.push_back({ch.samples_per_pixel.value_or(1), ch.name, ch.color});
+    }
+    return groups;
+  }
+  int spp =
+      (first_page_samples > 1 && pixels.size_c % first_page_samples == 0) ? first_page_samples : 1;
+  for (int64_t c = 0; c < pixels.size_c / spp; ++c) {
+    ChannelGroup group;
+    group.samples_per_pixel = spp;
+    if (static_cast<size_t>(c) < pixels.channels.size()) {
+      group.name = pixels.channels[c].name;
+      group.color = pixels.channels[c].color;
+    }
+    groups.push_back(std::move(group));
+  }
+  return groups;
+}
+
+Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOptions& options) {
+  const fs::path path = fs::absolute(input).lexically_normal();
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = options.max_plane_bytes;
+  auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles);
+
+  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadMetadata(path, *cache));
+  const std::string source = Quote(doc.source);
+  const std::vector<OmeImage>& images = doc.metadata.images;
+  const int series_count = static_cast<int>(std::min<size_t>(images.size(), INT32_MAX));
+  if (options.series < 0 || options.series >= series_count) {
+    return OutOfRangeError(source + ": series " + std::to_string(options.series) +
+                           " requested, the file has " + std::to_string(series_count) +
+                           " series (OME Images)");
+  }
+  const OmePixels& pixels = images[options.series].pixels;
+  if (options.time < 0 || options.time >= pixels.size_time) {
+    return OutOfRangeError(source + ": time point " + std::to_string(options.time) +
+                           " requested, series " + std::to_string(options.series) + " has " +
+                           std::to_string(pixels.size_time) + " (SizeT)");
+  }
+  const size_t bytes_per_sample = volume::BytesPerSample(pixels.type);
+  std::optional<uint64_t> plane_bytes =
+      CheckedProduct({static_cast<uint64_t>(pixels.size_x), static_cast<uint64_t>(pixels.size_y),
+                      bytes_per_sample});
+  if (!plane_bytes || *plane_bytes > options.max_plane_bytes) {
+    return ResourceExhaustedError(source + ": a " + std::to_string(pixels.size_x) + "x" +
+                                  std::to_string(pixels.size_y) + " plane exceeds the limit of " +
+                                  std::to_string(options.max_plane_bytes) + " bytes");
+  }
+  if (pixels.tiff_data.empty()) {
+    if (pixels.has_bin_data) {
+      return UnsupportedError(source + ": pixels embedded as BinData (pure OME-XML), not OME-TIFF");
+    }
+    return CorruptError(source + ": image " + std::to_string(options.series) +
+                        " has no TiffData: no planes are stored");
+  }
+
+  // Bound the tables built below before building them (SizeC sizes the channel list; Z x C the
+  // plane table; Z x C x T the walk over TiffData).
+  std::optional<uint64_t> declared_planes =
+      CheckedProduct({static_cast<uint64_t>(pixels.size_z), static_cast<uint64_t>(pixels.size_c),
+                      static_cast<uint64_t>(pixels.size_time)});
+  if (pixels.size_c > kMaxChannels ||
+      static_cast<uint64_t>(pixels.size_z) * static_cast<uint64_t>(pixels.size_c) >
+          kMaxPlanesPerTimePoint ||
+      !declared_planes || *declared_planes > kMaxPlanesPerSeries) {
+    return ResourceExhaustedError(
+        source + ": series " + std::to_string(options.series) + " declares " +
+        std::to_string(pixels.size_z) + " z x " + std::to_string(pixels.size_c) + " c x " +
+        std::to_string(pixels.size_time) + " t planes, more than supported (" +
+        std::to_string(kMaxChannels) + " channels, " + std::to_string(kMaxPlanesPerTimePoint) +
+        " planes per time point, " + std::to_string(kMaxPlanesPerSeries) + " in all)");
+  }
+
+  // Resolve files; learn the first page's sample count (needed when Channel elements are absent).
+  FileResolver resolver(doc, pixels);
+  std::vector<int> td_files;
+  for (const OmeTiffData& td : pixels.tiff_data) {
+    OCTO_ASSIGN_OR_RETURN(int file, resolver.Resolve(td));
+    td_files.push_back(file);
+  }
+  const std::vector<fs::path>& files = resolver.files();
+  std::vector<std::optional<int>> ifd_counts(files.size());
+  // Opens file `index` (checks existence first for a clear message) and records its page count.
+  auto open_file = [&](int index) -> Result<std::shared_ptr<TiffFile>> {
+    std::error_code ec;
+    if (!fs::is_regular_file(files[index], ec)) {
+      return NotFoundError(source + ": OME-XML references " + Quote(files[index]) +
+                           ", which does not exist");
+    }
+    Result<std::shared_ptr<TiffFile>> file = cache->Get(files[index]);
+    if (!file.ok()) return file.status();
+    ifd_counts[index] = (*file)->ifd_count();
+    return file;
+  };
+
+  int first_page_samples = 1;
+  {
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> first, open_file(td_files[0]));
+    int64_t ifd = pixels.tiff_data[0].ifd.value_or(0);
+    if (ifd < first->ifd_count()) {
+      first_page_samples = first->ifd(static_cast<int>(ifd)).samples_per_pixel;
+    }
+  }
+  const std::vector<ChannelGroup> groups = MakeChannelGroups(pixels, first_page_samples);
+  const int64_t group_count = static_cast<int64_t>(groups.size());
+  const std::array<int64_t, 3> sizes_zct{pixels.size_z, group_count, pixels.size_time};
+  std::optional<uint64_t> total_planes =
+      CheckedProduct({static_cast<uint64_t>(sizes_zct[0]), static_cast<uint64_t>(sizes_zct[1]),
+                      static_cast<uint64_t>(sizes_zct[2])});
+  if (!total_planes || *total_planes > kMaxPlanesPerSeries) {  // Cannot happen: C_eff <= SizeC.
+    return InternalError(source + ": plane count check failed");
+  }
+  const PlaneOrder order(pixels.dimension_order, sizes_zct);
+
+  // Pass 1: each TiffData becomes a run of planes in consecutive IFDs of one file.
+  std::vector<PlaneRun> runs;
+  uint64_t mapped_total = 0;
+  for (size_t i = 0; i < pixels.tiff_data.size(); ++i) {
+    const OmeTiffData& td = pixels.tiff_data[i];
+    const std::string what = source + ": TiffData " + std::to_string(i);
+    if (td.first_c >= group_count) {
+      return CorruptError(what + ": FirstC " + std::to_string(td.first_c) + " exceeds the " +
+                          std::to_string(group_count) + " channels stored as pages");
+    }
+    PlaneRun run;
+    run.file = td_files[i];
+    run.ifd = td.ifd.value_or(0);
+    run.start = order.Index({td.first_z, td.first_c, td.first_t});
+    const uint64_t remaining_planes = *total_planes - run.start;
+    if (td.plane_count) {
+      run.count = static_cast<uint64_t>(*td.plane_count);
+    } else if (td.ifd) {
+      run.count = 1;
+    } else if (pixels.tiff_data.size() == 1) {
+      run.count = remaining_planes;  // The sole TiffData: every plane, in order.
+    } else {
+      // All remaining pages of the file.
+      if (!ifd_counts[run.file]) {
+        Result<std::shared_ptr<TiffFile>> opened = open_file(run.file);
+        if (!opened.ok()) return opened.status();
+      }
+      run.count = std::min<uint64_t>(remaining_planes,
+                                     static_cast<uint64_t>(std::max(0, *ifd_counts[run.file])));
+    }
+    if (run.count > remaining_planes) {
+      return CorruptError(what + ": PlaneCount " + std::to_string(run.count) + " from plane " +
+                          std::to_string(run.start) + " runs past the image's " +
+                          std::to_string(*total_planes) + " planes");
+    }
+    if (run.count > 0 &&
+        static_cast<uint64_t>(run.ifd) + run.count - 1 > static_cast<uint64_t>(kMaxIfdIndex)) {
+      return CorruptError(what + ": IFD index beyond 2^31");
+    }
+    mapped_total += run.count;
+    if (mapped_total > *total_planes) {
+      return CorruptError(source + ": TiffData elements map more planes than the image's " +
+                          std::to_string(*total_planes));
+    }
+    runs.push_back(run);
+  }
+
+  // The plane table of the selected time point; remember which files it needs.
+  const int64_t size_z = pixels.size_z;
+  std::vector<PlaneRef> planes(static_cast<size_t>(group_count * size_z));
+  std::vector<bool> needed(files.size(), false);
+  for (const PlaneRun& run : runs) {
+    for (uint64_t k = 0; k < run.count; ++k) {
+      std::array<int64_t, 3> zct = order.Coordinates(run.start + k);
+      if (zct[2] != options.time) continue;
+      PlaneRef& ref = planes[static_cast<size_t>(zct[1] * size_z + zct[0])];
+      if (ref.file >= 0) continue;  // Mapped twice: the first TiffData wins.
+      ref.file = run.file;
+      ref.ifd = static_cast<int>(run.ifd + static_cast<int64_t>(k));
+      needed[run.file] = true;
+    }
+  }
+  for (int64_t g = 0; g < group_count; ++g) {
+    for (int64_t z = 0; z < size_z; ++z) {
+      if (planes[static_cast<size_t>(g * size_z + z)].file < 0) {
+        return CorruptError(source + ": plane (" + ZctName({z, g, options.time}) + ") of series " +
+                            std::to_string(options.series) +
+                            " is not stored in any TIFF page (no TiffData maps it)");
+      }
+    }
+  }
+
+  // Pass 2: verify pages. Files the selected time point needs are opened; runs in files opened
+  // anyway are checked too, so an XML claiming more pages than a file holds is caught early.
+  for (size_t f = 0; f < files.size(); ++f) {
+    if (!needed[f] && !ifd_counts[f]) continue;
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, open_file(static_cast<int>(f)));
+    const std::string name = Quote(files[f]);
+    for (const PlaneRun& run : runs) {
+      if (run.file != static_cast<int>(f) || run.count == 0) continue;
+      const uint64_t last = static_cast<uint64_t>(run.ifd) + run.count - 1;
+      if (last >= static_cast<uint64_t>(file->ifd_count())) {
+        const std::string xml_where = name == source ? "" : " in " + source;
+        return CorruptError(name + ": OME-XML" + xml_where + " maps planes to IFDs " +
+                            std::to_string(run.ifd) + ".." + std::to_string(last) +
+                            ", but the file has only " + std::to_string(file->ifd_count()) +
+                            " IFDs");
+      }
+      for (uint64_t k = 0; k < run.count; ++k) {
+        const int index = static_cast<int>(run.ifd + static_cast<int64_t>(k));
+        const TiffIfd& ifd = file->ifd(index);
+        const std::string page = name + ": IFD " + std::to_string(index);
+        if (ifd.width != pixels.size_x || ifd.height != pixels.size_y) {
+          return CorruptError(page + " is " + std::to_string(ifd.width) + "x" +
+                              std::to_string(ifd.height) + ", OME-XML Pixels says " +
+                              std::to_string(pixels.size_x) + "x" + std::to_string(pixels.size_y));
+        }
+        if (!ifd.dtype) {
+          return UnsupportedError(page + ": sample layout (" + std::to_string(ifd.bits_per_sample) +
+                                  " bits, format " + std::to_string(ifd.sample_format) +
+                                  ") is not supported");
+        }
+        if (*ifd.dtype != pixels.type) {
+          return CorruptError(page + " holds " + std::string(volume::NumpyName(*ifd.dtype)) +
+                              " samples, OME-XML Pixels@Type says " +
+                              std::string(volume::NumpyName(pixels.type)));
+        }
+        const std::array<int64_t, 3> zct = order.Coordinates(run.start + k);
+        const int want_samples = groups[static_cast<size_t>(zct[1])].samples_per_pixel;
+        if (ifd.samples_per_pixel != want_samples) {
+          return CorruptError(page + " has " + std::to_string(ifd.samples_per_pixel) +
+                              " samples per pixel, OME-XML expects " +
+                              std::to_string(want_samples) + " for channel group " +
+                              std::to_string(zct[1]));
+        }
+      }
+    }
+  }
+
+  volume::VolumeInfo info;
+  info.format = "ome-tiff";
+  info.size = {pixels.size_x, pixels.size_y, pixels.size_z};
+  info.dtype = pixels.type;
+  std::vector<std::pair<int, int>> channel_map;
+  for (size_t g = 0; g < groups.size(); ++g) {
+    const ChannelGroup& group = groups[g];
+    static constexpr volume::Rgba kRgb[3] = {{255, 0, 0, 255}, {0, 255, 0, 255}, {0, 0, 255, 255}};
+    for (int s = 0; s < group.samples_per_pixel; ++s) {
+      volume::ChannelInfo channel;
+      channel.name = group.name;
+      channel.color = group.color;
+      // RGB pages without a colour: show them as red, green and blue.
+      if (!channel.color && group.samples_per_pixel == 3) channel.color = kRgb[s];
+      info.channels.push_back(std::move(channel));
+      channel_map.emplace_back(static_cast<int>(g), s);
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    info.spacing_um[a] = options.spacing_um[a] ? options.spacing_um[a] : pixels.physical_size_um[a];
+  }
+  info.series_count = series_count;
+  info.series = options.series;
+  info.time_points = static_cast<int>(pixels.size_time);  // <= kMaxPlanesPerSeries < 2^31.
+  info.time = options.time;
+  Status valid = info.Validate();
+  if (!valid.ok()) return valid.WithContext(source);
+
+  return std::unique_ptr<VolumeSource>(std::make_unique<OmeTiffVolume>(
+      std::move(info), files, std::move(planes), std::move(channel_map), std::move(cache)));
+}
+
+}  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenOmeTiff(const std::filesystem::path& path,
+                                                  const OpenOptions& options) {
+  return Open(path, options);
+}
+
+}  // namespace octoscope::io
