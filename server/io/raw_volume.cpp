@@ -1,0 +1,218 @@
+#include "io/raw_volume.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <bit>
+#include <cerrno>
+#include <cstdint>
+#include <cstring>
+#include <optional>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "util/checked_math.h"
+
+namespace octoscope::io {
+namespace {
+
+// De-interleaving reads at most this many bytes of the file at a time.
+constexpr uint64_t kInterleavedChunkBytes = uint64_t{4} << 20;
+
+std::string Num(uint64_t v) { return std::to_string(v); }
+
+// Reverses the byte order of every `width`-byte sample in `data`.
+void SwapBytes(std::span<std::byte> data, size_t width) {
+  if (width <= 1) return;
+  for (size_t i = 0; i + width <= data.size(); i += width) {
+    std::reverse(data.begin() + static_cast<std::ptrdiff_t>(i),
+                 data.begin() + static_cast<std::ptrdiff_t>(i + width));
+  }
+}
+
+// Owns a read-only file descriptor.
+class Fd {
+ public:
+  explicit Fd(int fd) : fd_(fd) {}
+  ~Fd() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  Fd(const Fd&) = delete;
+  Fd& operator=(const Fd&) = delete;
+  int get() const { return fd_; }
+
+ private:
+  int fd_;
+};
+
+class RawVolume final : public VolumeSource {
+ public:
+  // REQUIRES: `info` validated; the file holds header_bytes + info.VoxelBytes() bytes.
+  RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::unique_ptr<Fd> fd,
+            const RawLayout& layout)
+      : info_(std::move(info)),
+        path_(std::move(path)),
+        fd_(std::move(fd)),
+        header_bytes_(layout.header_bytes),
+        interleaved_(layout.interleaved && layout.channels > 1),
+        swap_(layout.big_endian != (std::endian::native == std::endian::big)) {}
+
+  const volume::VolumeInfo& info() const override { return info_; }
+
+  Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    const size_t bps = volume::BytesPerSample(info_.dtype);
+    const uint64_t plane_voxels = info_.PlaneVoxels();
+    if (!interleaved_) {
+      // Planar: channel c is one whole volume at header + c * (volume bytes); the slab is one
+      // contiguous run of the file.
+      const uint64_t voxel = (static_cast<uint64_t>(channel) * info_.size[2] + z0) * plane_voxels;
+      OCTO_RETURN_IF_ERROR(ReadAt(header_bytes_ + voxel * bps, out));
+    } else {
+      OCTO_RETURN_IF_ERROR(ReadInterleaved(channel, z0, nz, out));
+    }
+    if (swap_) SwapBytes(out, bps);
+    return Status::Ok();
+  }
+
+ private:
+  // Interleaved: voxel v of channel c lies at header + (v * C + c) * bps. Reads the slab's span
+  // of the file in bounded chunks of whole voxels and picks out this channel's samples.
+  Status ReadInterleaved(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) {
+    const size_t bps = volume::BytesPerSample(info_.dtype);
+    const uint64_t stride = static_cast<uint64_t>(info_.channel_count()) * bps;
+    const uint64_t first_voxel = static_cast<uint64_t>(z0) * info_.PlaneVoxels();
+    const uint64_t voxels = static_cast<uint64_t>(nz) * info_.PlaneVoxels();
+    const uint64_t chunk_voxels = std::max<uint64_t>(1, kInterleavedChunkBytes / stride);
+    std::vector<std::byte> chunk(static_cast<size_t>(std::min(chunk_voxels, voxels) * stride));
+    for (uint64_t done = 0; done < voxels;) {
+      const uint64_t n = std::min(chunk_voxels, voxels - done);
+      std::span<std::byte> buf(chunk.data(), static_cast<size_t>(n * stride));
+      OCTO_RETURN_IF_ERROR(ReadAt(header_bytes_ + (first_voxel + done) * stride, buf));
+      const std::byte* src = buf.data() + static_cast<size_t>(channel) * bps;
+      std::byte* dst = out.data() + static_cast<size_t>(done * bps);
+      for (uint64_t i = 0; i < n; ++i) {
+        std::memcpy(dst + i * bps, src + i * stride, bps);
+      }
+      done += n;
+    }
+    return Status::Ok();
+  }
+
+  // Fills `out` from file offset `offset`; pread keeps no shared offset, so threads don't race.
+  Status ReadAt(uint64_t offset, std::span<std::byte> out) const {
+    size_t got = 0;
+    while (got < out.size()) {
+      ssize_t r =
+          ::pread(fd_->get(), out.data() + got, out.size() - got, static_cast<off_t>(offset + got));
+      if (r < 0) {
+        if (errno == EINTR) continue;
+        return IoError(path_.string() + ": read of " + Num(out.size()) + " bytes at offset " +
+                       Num(offset) + " failed: " + std::strerror(errno));
+      }
+      if (r == 0) {
+        return CorruptError(path_.string() + ": file ended at offset " + Num(offset + got) +
+                            " (it was shortened after opening?)");
+      }
+      got += static_cast<size_t>(r);
+    }
+    return Status::Ok();
+  }
+
+  const volume::VolumeInfo info_;
+  const std::filesystem::path path_;
+  const std::unique_ptr<Fd> fd_;
+  const uint64_t header_bytes_;
+  const bool interleaved_;
+  const bool swap_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
+                                                    const OpenOptions& options) {
+  const std::string name = layout.data_file.string();
+  for (int axis = 0; axis < 3; ++axis) {
+    if (layout.size[axis] < 1) {
+      return InvalidArgumentError(name + ": raw size along " + std::string(1, "xyz"[axis]) +
+                                  " is " + std::to_string(layout.size[axis]) + ", must be >= 1");
+    }
+  }
+  if (layout.channels < 1) {
+    return InvalidArgumentError(name + ": raw channel count is " + std::to_string(layout.channels) +
+                                ", must be >= 1");
+  }
+  if (!layout.channel_names.empty() &&
+      layout.channel_names.size() != static_cast<size_t>(layout.channels)) {
+    return InvalidArgumentError(name + ": " + std::to_string(layout.channel_names.size()) +
+                                " channel names for " + std::to_string(layout.channels) +
+                                " channels");
+  }
+  if (options.series != 0 || options.time != 0) {
+    return OutOfRangeError(name +
+                           ": a raw file holds one series and one time point (asked for "
+                           "series " +
+                           std::to_string(options.series) + ", time " +
+                           std::to_string(options.time) + ")");
+  }
+  const uint64_t bps = volume::BytesPerSample(layout.dtype);
+  std::optional<uint64_t> plane_bytes = CheckedProduct(
+      {static_cast<uint64_t>(layout.size[0]), static_cast<uint64_t>(layout.size[1]), bps});
+  std::optional<uint64_t> voxel_bytes =
+      plane_bytes ? CheckedProduct({*plane_bytes, static_cast<uint64_t>(layout.size[2]),
+                                    static_cast<uint64_t>(layout.channels)})
+                  : std::nullopt;
+  std::optional<uint64_t> need =
+      voxel_bytes ? CheckedAdd(*voxel_bytes, layout.header_bytes) : std::nullopt;
+  if (!need || *need > static_cast<uint64_t>(INT64_MAX)) {
+    return InvalidArgumentError(
+        name + ": raw layout " + std::to_string(layout.size[0]) + "x" +
+        std::to_string(layout.size[1]) + "x" + std::to_string(layout.size[2]) + "x" +
+        std::to_string(layout.channels) + " " + std::string(volume::NumpyName(layout.dtype)) +
+        " overflows a 64-bit byte count");
+  }
+  if (*plane_bytes > options.max_plane_bytes) {
+    return ResourceExhaustedError(name + ": one plane is " + Num(*plane_bytes) +
+                                  " bytes, more than the limit of " + Num(options.max_plane_bytes));
+  }
+
+  int raw_fd = ::open(layout.data_file.c_str(), O_RDONLY | O_CLOEXEC);
+  if (raw_fd < 0) {
+    const int err = errno;
+    if (err == ENOENT) return NotFoundError(name + ": raw data file not found");
+    return IoError(name + ": cannot open raw data file: " + std::strerror(err));
+  }
+  auto fd = std::make_unique<Fd>(raw_fd);
+  struct stat st;
+  if (::fstat(fd->get(), &st) != 0) {
+    return IoError(name + ": cannot stat raw data file: " + std::strerror(errno));
+  }
+  if (!S_ISREG(st.st_mode)) return InvalidArgumentError(name + ": not a regular file");
+  const uint64_t file_size = static_cast<uint64_t>(st.st_size);
+  if (file_size < *need) {
+    return CorruptError(name + ": raw file is truncated: it holds " + Num(file_size) +
+                        " bytes, the layout needs " + Num(*need) + " (header " +
+                        Num(layout.header_bytes) + " + voxels " + Num(*voxel_bytes) + ")");
+  }
+
+  volume::VolumeInfo info;
+  info.format = "raw";
+  info.size = layout.size;
+  info.dtype = layout.dtype;
+  info.channels.resize(static_cast<size_t>(layout.channels));
+  for (size_t c = 0; c < layout.channel_names.size(); ++c) {
+    info.channels[c].name = layout.channel_names[c];
+  }
+  for (int axis = 0; axis < 3; ++axis) {
+    info.spacing_um[axis] =
+        options.spacing_um[axis] ? options.spacing_um[axis] : layout.spacing_um[axis];
+  }
+  if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
+  return std::unique_ptr<VolumeSource>(
+      new RawVolume(std::move(info), layout.data_file, std::move(fd), layout));
+}
+
+}  // namespace octoscope::io

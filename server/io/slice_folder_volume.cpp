@@ -1,0 +1,440 @@
+#include "io/slice_folder_volume.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <list>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <system_error>
+#include <unordered_map>
+#include <utility>
+#include <vector>
+
+#include "io/tiff_file.h"
+#include "io/tiff_stack_volume.h"
+#include "util/checked_math.h"
+#include "util/strings.h"
+
+namespace octoscope::io {
+namespace {
+
+// One channel as the folder lays it out: a name and its slice files in z order.
+struct FolderChannel {
+  std::string name;
+  std::vector<std::filesystem::path> files;
+};
+
+bool IsDigit(char c) { return c >= '0' && c <= '9'; }
+bool IsLetter(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z'); }
+
+bool IsTiffName(const std::string& name) {
+  return EndsWithIgnoreCase(name, ".tif") || EndsWithIgnoreCase(name, ".tiff");
+}
+
+// The visible TIFF files and sub-folders directly inside `dir`.
+struct Listing {
+  std::vector<std::filesystem::path> tiffs;
+  std::vector<std::filesystem::path> folders;
+};
+
+Result<Listing> ListFolder(const std::filesystem::path& dir) {
+  Listing listing;
+  std::error_code ec;
+  std::filesystem::directory_iterator it(dir, ec);
+  if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
+  for (; it != std::filesystem::directory_iterator(); it.increment(ec)) {
+    if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
+    const std::string name = it->path().filename().string();
+    if (name.empty() || name[0] == '.') continue;  // Hidden (also macOS "._x.tif" sidecars).
+    std::error_code type_ec;
+    if (it->is_directory(type_ec)) {
+      listing.folders.push_back(it->path());
+    } else if (it->is_regular_file(type_ec) && IsTiffName(name)) {
+      listing.tiffs.push_back(it->path());
+    }
+  }
+  if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
+  auto by_name = [](const std::filesystem::path& a, const std::filesystem::path& b) {
+    return NaturalLess(a.filename().string(), b.filename().string());
+  };
+  std::sort(listing.tiffs.begin(), listing.tiffs.end(), by_name);
+  std::sort(listing.folders.begin(), listing.folders.end(), by_name);
+  return listing;
+}
+
+// A file stem split into maximal runs of digits and of non-digits.
+struct Token {
+  std::string text;
+  bool digits = false;
+};
+
+std::vector<Token> Tokenize(std::string_view stem) {
+  std::vector<Token> tokens;
+  for (char c : stem) {
+    if (tokens.empty() || tokens.back().digits != IsDigit(c)) tokens.push_back({"", IsDigit(c)});
+    tokens.back().text += c;
+  }
+  return tokens;
+}
+
+// The channel marker ("c", "ch", "channel", "w", any case) that `token` ends with, as spelled in
+// the file, when it starts the token or follows a non-letter; "" otherwise.
+std::string ChannelMarker(const std::string& token) {
+  for (std::string_view marker : {"channel", "ch", "c", "w"}) {
+    if (!EndsWithIgnoreCase(token, marker)) continue;
+    const size_t start = token.size() - marker.size();
+    if (start > 0 && IsLetter(token[start - 1])) continue;
+    return token.substr(start);
+  }
+  return "";
+}
+
+// Numeric value of a digit run, saturating (only compared, never used as a size).
+uint64_t DigitValue(const std::string& digits) {
+  uint64_t v = 0;
+  for (char c : digits) {
+    v = CheckedAdd(CheckedMul(v, 10).value_or(UINT64_MAX), static_cast<uint64_t>(c - '0'))
+            .value_or(UINT64_MAX);
+  }
+  return v;
+}
+
+// Tries token position `p` as the channel token of `files` (whose stems are `tokens`). Returns
+// nullopt when the token does not number channels: it takes a single value, or every value names
+// a single file (then it numbers the slices). Errors when it numbers channels whose names do not
+// line up: every channel must hold the same names once the token is blanked out.
+Result<std::optional<std::vector<FolderChannel>>> GroupByToken(
+    const std::filesystem::path& dir, const std::vector<std::filesystem::path>& files,
+    const std::vector<std::vector<Token>>& tokens, size_t p) {
+  using Grouping = std::optional<std::vector<FolderChannel>>;
+  // value -> (key -> file); key is the stem with token p replaced by a placeholder.
+  std::map<uint64_t, std::map<std::string, std::filesystem::path>> groups;
+  std::map<uint64_t, std::string> names;
+  std::optional<std::pair<std::filesystem::path, std::filesystem::path>> duplicate;
+  for (size_t f = 0; f < files.size(); ++f) {
+    std::string key;
+    for (size_t t = 0; t < tokens[f].size(); ++t) key += t == p ? "\x01" : tokens[f][t].text;
+    const uint64_t value = DigitValue(tokens[f][p].text);
+    auto [it, inserted] = groups[value].emplace(key, files[f]);
+    if (!inserted && !duplicate) duplicate.emplace(it->second, files[f]);  // "c1" and "c01".
+    names.emplace(value, ChannelMarker(tokens[f][p - 1].text) + tokens[f][p].text);
+  }
+  if (groups.size() < 2) return Grouping();
+  if (std::all_of(groups.begin(), groups.end(),
+                  [](const auto& g) { return g.second.size() == 1; })) {
+    return Grouping();
+  }
+  if (duplicate) {
+    return CorruptError(dir.string() + ": " + duplicate->first.filename().string() + " and " +
+                        duplicate->second.filename().string() +
+                        " are the same slice of the same channel");
+  }
+  // Every name (with the token blanked) must occur in every channel.
+  std::vector<std::pair<std::string, const std::filesystem::path*>> keys;
+  for (const auto& [value, members] : groups) {
+    for (const auto& [key, file] : members) {
+      if (std::none_of(keys.begin(), keys.end(), [&](const auto& k) { return k.first == key; })) {
+        keys.emplace_back(key, &file);
+      }
+    }
+  }
+  std::sort(keys.begin(), keys.end(),
+            [](const auto& a, const auto& b) { return NaturalLess(a.first, b.first); });
+  std::vector<FolderChannel> channels;
+  for (const auto& [value, members] : groups) {
+    FolderChannel channel{names[value], {}};
+    for (const auto& [key, example] : keys) {
+      auto it = members.find(key);
+      if (it == members.end()) {
+        return CorruptError(example->string() + ": no matching slice in channel \"" + names[value] +
+                            "\" (channels are told apart by the \"" + names[value] +
+                            "\" token in the file names; every channel needs the "
+                            "same slices)");
+      }
+      channel.files.push_back(it->second);
+    }
+    channels.push_back(std::move(channel));
+  }
+  return Grouping(std::move(channels));
+}
+
+// Splits a flat folder's files (natural order) into channels by a channel token in the names
+// (see slice_folder_volume.h), or returns them as one unnamed channel.
+Result<std::vector<FolderChannel>> SplitFlatFolder(
+    const std::filesystem::path& dir, const std::vector<std::filesystem::path>& files) {
+  std::vector<std::vector<Token>> tokens;
+  for (const auto& f : files) tokens.push_back(Tokenize(f.stem().string()));
+  std::vector<std::vector<FolderChannel>> found;
+  std::vector<std::string> found_tokens;
+  const size_t n = tokens[0].size();
+  const bool uniform = std::all_of(tokens.begin(), tokens.end(),
+                                   [n](const std::vector<Token>& t) { return t.size() == n; });
+  for (size_t p = 1; uniform && p < n; ++p) {
+    bool candidate = true;
+    for (const auto& t : tokens) {
+      if (!t[p].digits || ChannelMarker(t[p - 1].text).empty() ||
+          !EqualsIgnoreCase(t[p - 1].text, tokens[0][p - 1].text)) {
+        candidate = false;
+        break;
+      }
+    }
+    if (!candidate) continue;
+    OCTO_ASSIGN_OR_RETURN(std::optional<std::vector<FolderChannel>> channels,
+                          GroupByToken(dir, files, tokens, p));
+    if (channels) {
+      found.push_back(std::move(*channels));
+      found_tokens.push_back(tokens[0][p - 1].text + tokens[0][p].text);
+    }
+  }
+  if (found.size() > 1) {
+    return UnsupportedError(dir.string() + ": ambiguous channel tokens in the file names (\"" +
+                            Printable(found_tokens[0]) + "\" and \"" + Printable(found_tokens[1]) +
+                            "\" both vary); put each channel in its own sub-folder");
+  }
+  if (found.size() == 1) return std::move(found[0]);
+  return std::vector<FolderChannel>{{"", files}};
+}
+
+std::optional<double> PositiveFinite(std::optional<double> v) {
+  if (v && std::isfinite(*v) && *v > 0) return v;
+  return std::nullopt;
+}
+
+// Spacing from one slice's tags: ImageJ's description (unit=, spacing=) with the resolution tags
+// in that unit; else a centimetre ResolutionUnit. Inch and unitless resolutions give nothing
+// (TIFF writers put 72 dpi there by default, which says nothing about a microscope).
+std::array<std::optional<double>, 3> SpacingFromIfd(const TiffIfd& ifd) {
+  std::array<std::optional<double>, 3> spacing;
+  auto from_resolution = [&](double um_per_unit) {
+    if (auto r = PositiveFinite(ifd.x_resolution)) spacing[0] = PositiveFinite(um_per_unit / *r);
+    if (auto r = PositiveFinite(ifd.y_resolution)) spacing[1] = PositiveFinite(um_per_unit / *r);
+  };
+  // The same ImageJ rules as single-file ImageJ stacks (tiff_stack_volume.h).
+  if (std::optional<ImageJDescription> ij = ParseImageJDescription(ifd.description)) {
+    if (std::optional<double> um_per_unit = MicrometresPerUnit(ij->unit)) {
+      from_resolution(*um_per_unit);
+      if (ij->spacing) spacing[2] = PositiveFinite(std::fabs(*ij->spacing) * *um_per_unit);
+      return spacing;
+    }
+  }
+  if (ifd.resolution_unit == 3) from_resolution(1e4);  // Pixels per centimetre.
+  return spacing;
+}
+
+std::string DescribeSlice(const TiffIfd& ifd) {
+  return std::to_string(ifd.width) + "x" + std::to_string(ifd.height) + " " +
+         (ifd.dtype ? std::string(volume::NumpyName(*ifd.dtype)) : std::string("undecodable")) +
+         (ifd.samples_per_pixel > 1
+              ? " with " + std::to_string(ifd.samples_per_pixel) + " samples per pixel"
+              : std::string());
+}
+
+// The one full-resolution IFD of a slice file (reduced-resolution copies such as thumbnails are
+// ignored); nullopt when there is not exactly one.
+std::optional<int> SliceIfd(const TiffFile& file) {
+  std::optional<int> found;
+  for (int i = 0; i < file.ifd_count(); ++i) {
+    if ((file.ifd(i).subfile_type & 1) != 0) continue;
+    if (found) return std::nullopt;
+    found = i;
+  }
+  return found;
+}
+
+bool SameSliceLayout(const TiffIfd& a, const TiffIfd& b) {
+  return a.width == b.width && a.height == b.height && a.dtype == b.dtype &&
+         a.samples_per_pixel == b.samples_per_pixel;
+}
+
+// A bounded LRU of open TiffFile handles, keyed by slice number. Handles are shared_ptrs so that
+// an evicted handle stays valid for a reader that is still decoding from it.
+class HandleCache {
+ public:
+  HandleCache(size_t capacity, TiffFile::Limits limits) : capacity_(capacity), limits_(limits) {}
+
+  Result<std::shared_ptr<TiffFile>> Get(size_t key, const std::filesystem::path& path) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (auto it = entries_.find(key); it != entries_.end()) {
+        order_.splice(order_.begin(), order_, it->second.second);
+        return it->second.first;
+      }
+    }
+    // Open outside the lock: other threads keep reading cached files meanwhile.
+    OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> opened, TiffFile::Open(path, limits_));
+    std::shared_ptr<TiffFile> file(std::move(opened));
+    Put(key, file);
+    return file;
+  }
+
+  void Put(size_t key, std::shared_ptr<TiffFile> file) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (entries_.count(key) != 0) return;  // Another thread opened it first; keep that one.
+    order_.push_front(key);
+    entries_.emplace(key, std::make_pair(std::move(file), order_.begin()));
+    while (entries_.size() > capacity_) {
+      entries_.erase(order_.back());
+      order_.pop_back();
+    }
+  }
+
+ private:
+  const size_t capacity_;
+  const TiffFile::Limits limits_;
+  std::mutex mutex_;
+  std::list<size_t> order_;  // GUARDED_BY(mutex_); most recently used first.
+  std::unordered_map<size_t, std::pair<std::shared_ptr<TiffFile>, std::list<size_t>::iterator>>
+      entries_;  // GUARDED_BY(mutex_).
+};
+
+class SliceFolderVolume final : public VolumeSource {
+ public:
+  // REQUIRES: every file of `channels` was checked to have first_ifd's layout; channels non-empty,
+  // all with the same number of files.
+  SliceFolderVolume(volume::VolumeInfo info, std::vector<FolderChannel> channels,
+                    const TiffIfd& first_ifd, TiffFile::Limits limits)
+      : info_(std::move(info)),
+        channels_(std::move(channels)),
+        layout_(first_ifd),
+        cache_(kMaxOpenSliceFiles, limits) {}
+
+  const volume::VolumeInfo& info() const override { return info_; }
+
+  HandleCache& cache() { return cache_; }
+
+  Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    const int samples = layout_.samples_per_pixel;
+    const size_t folder_channel = static_cast<size_t>(channel / samples);
+    const int sample = channel % samples;
+    const size_t plane_bytes = static_cast<size_t>(SlabBytes(1));
+    for (int64_t i = 0; i < nz; ++i) {
+      const size_t z = static_cast<size_t>(z0 + i);
+      const std::filesystem::path& path = channels_[folder_channel].files[z];
+      OCTO_ASSIGN_OR_RETURN(
+          std::shared_ptr<TiffFile> file,
+          cache_.Get(folder_channel * static_cast<size_t>(info_.size[2]) + z, path));
+      // The file may have been replaced since we opened the folder; never decode a plane into a
+      // buffer sized for another layout.
+      std::optional<int> index = SliceIfd(*file);
+      if (!index || !SameSliceLayout(file->ifd(*index), layout_)) {
+        return CorruptError(path.string() + ": slice changed since the folder was opened");
+      }
+      OCTO_RETURN_IF_ERROR(file->ReadPlane(
+          *index, sample, out.subspan(static_cast<size_t>(i) * plane_bytes, plane_bytes)));
+    }
+    return Status::Ok();
+  }
+
+ private:
+  const volume::VolumeInfo info_;
+  const std::vector<FolderChannel> channels_;
+  const TiffIfd layout_;
+  HandleCache cache_;
+};
+
+}  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::path& dir,
+                                                      const OpenOptions& options) {
+  const std::string name = dir.string();
+  std::error_code ec;
+  const auto status = std::filesystem::status(dir, ec);
+  if (ec || !std::filesystem::exists(status)) return NotFoundError(name + ": no such folder");
+  if (!std::filesystem::is_directory(status)) return InvalidArgumentError(name + ": not a folder");
+  if (options.series != 0 || options.time != 0) {
+    return OutOfRangeError(name +
+                           ": a slice folder holds one series and one time point (asked "
+                           "for series " +
+                           std::to_string(options.series) + ", time " +
+                           std::to_string(options.time) + ")");
+  }
+
+  OCTO_ASSIGN_OR_RETURN(Listing top, ListFolder(dir));
+  std::vector<FolderChannel> channels;
+  if (!top.tiffs.empty()) {
+    OCTO_ASSIGN_OR_RETURN(channels, SplitFlatFolder(dir, top.tiffs));
+  } else {
+    for (const auto& sub : top.folders) {
+      OCTO_ASSIGN_OR_RETURN(Listing inner, ListFolder(sub));
+      if (!inner.tiffs.empty()) channels.push_back({sub.filename().string(), inner.tiffs});
+    }
+  }
+  if (channels.empty()) {
+    return NotFoundError(name + ": no TIFF slices (.tif/.tiff) in the folder or its sub-folders");
+  }
+  for (const FolderChannel& c : channels) {
+    if (c.files.size() != channels[0].files.size()) {
+      return CorruptError(name + ": channel \"" + c.name + "\" has " +
+                          std::to_string(c.files.size()) + " slices, channel \"" +
+                          channels[0].name + "\" has " + std::to_string(channels[0].files.size()));
+    }
+  }
+
+  // Open every slice once: all must agree with the first.
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = options.max_plane_bytes;
+  std::optional<TiffIfd> first;
+  std::vector<std::pair<size_t, std::shared_ptr<TiffFile>>> warm;  // Handles to keep cached.
+  const size_t slices = channels[0].files.size();
+  for (size_t c = 0; c < channels.size(); ++c) {
+    for (size_t z = 0; z < slices; ++z) {
+      const std::filesystem::path& path = channels[c].files[z];
+      OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, limits));
+      std::optional<int> index = SliceIfd(*file);
+      if (!index) {
+        return UnsupportedError(path.string() + ": has " + std::to_string(file->ifd_count()) +
+                                " full-resolution pages; a slice folder holds one 2-D image per "
+                                "file (open a multi-page file on its own)");
+      }
+      const TiffIfd& ifd = file->ifd(*index);
+      if (!first) {
+        if (!ifd.dtype) {
+          return UnsupportedError(path.string() + ": sample layout not supported (" +
+                                  std::to_string(ifd.bits_per_sample) + " bits, format " +
+                                  std::to_string(ifd.sample_format) + ")");
+        }
+        first = ifd;
+      } else if (!SameSliceLayout(ifd, *first)) {
+        return CorruptError(path.string() + ": slice is " + DescribeSlice(ifd) + ", but " +
+                            channels[0].files[0].filename().string() + " is " +
+                            DescribeSlice(*first) + "; all slices must match");
+      }
+      if (warm.size() < static_cast<size_t>(kMaxOpenSliceFiles)) {
+        warm.emplace_back(c * slices + z, std::shared_ptr<TiffFile>(std::move(file)));
+      }
+    }
+  }
+
+  volume::VolumeInfo info;
+  info.format = "slice-folder";
+  info.size = {first->width, first->height, static_cast<int64_t>(slices)};
+  info.dtype = *first->dtype;
+  const int samples = first->samples_per_pixel;
+  for (const FolderChannel& c : channels) {
+    for (int s = 0; s < samples; ++s) {
+      std::string channel_name = c.name;
+      if (samples > 1) {
+        channel_name += (channel_name.empty() ? "s" : " s") + std::to_string(s);
+      }
+      info.channels.push_back({channel_name, std::nullopt});
+    }
+  }
+  info.spacing_um = SpacingFromIfd(*first);
+  for (int axis = 0; axis < 3; ++axis) {
+    if (options.spacing_um[axis]) info.spacing_um[axis] = options.spacing_um[axis];
+  }
+  if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
+
+  auto volume =
+      std::make_unique<SliceFolderVolume>(std::move(info), std::move(channels), *first, limits);
+  for (auto& [key, file] : warm) volume->cache().Put(key, std::move(file));
+  return std::unique_ptr<VolumeSource>(std::move(volume));
+}
+
+}  // namespace octoscope::io
