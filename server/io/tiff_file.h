@@ -44,6 +44,11 @@ struct TiffIfd {
   std::optional<double> x_resolution;
   std::optional<double> y_resolution;
   uint16_t resolution_unit = 2;
+  // Software tag of IFD 0 only ("" elsewhere and when absent): ScanImage stores its metadata there
+  // and repeats kilobytes of it in every IFD, which would bloat the index of a long recording.
+  std::string software;
+  // NewSubfileType bits (bit 0: a reduced-resolution copy of another page, e.g. a thumbnail).
+  uint32_t subfile_type = 0;
 };
 
 class TiffFile {
@@ -76,6 +81,16 @@ class TiffFile {
   // IFD's dtype and native byte order.
   // REQUIRES: out.size() == width * height * BytesPerSample(*dtype).
   Status ReadPlane(int index, int sample, std::span<std::byte> out);
+
+  // The file offset of IFD `index`'s pixel data when it is uncompressed, in strips, and stored
+  // as one contiguous run of width*height*samples*bytes bytes in strip order (as ImageJ writes
+  // it); an Unsupported error otherwise. Lets readers address data that no IFD describes (ImageJ
+  // files > 4 GB keep one IFD and store the further images right after the first).
+  Result<uint64_t> ContiguousDataOffset(int index);
+
+  // Reads out.size() raw bytes at `offset` (file byte order). Errors when the range does not lie
+  // inside the file. Thread-safe without taking the decoding lock (positioned reads).
+  Status ReadBytes(uint64_t offset, std::span<std::byte> out) const;
 
  private:
   struct Impl;

@@ -1,0 +1,822 @@
+// Tests for TiffFile: every layout libtiff writes (classic/BigTIFF, both byte orders, strips and
+// tiles, compressions, predictors, sample types, chunky/planar) is decoded voxel by voxel against
+// the values the fixture wrote, and every kind of broken file yields an error naming the file.
+#include "io/tiff_file.h"
+
+#include <gtest/gtest.h>
+#include <tiffio.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "io/tiff_fixture.h"
+
+namespace octoscope::io {
+namespace {
+
+namespace fs = std::filesystem;
+using octoscope::testing::MakeTempDir;
+using octoscope::testing::TiffFixtureSpec;
+using octoscope::testing::WriteTiffFixture;
+using volume::DataType;
+
+// ---------------------------------------------------------------------------------------------
+// Values written and expected.
+
+// Integers exercise all 32 bits (and signs, once narrowed); floats get fractions and negatives.
+double PatternFor(DataType type, uint32_t x, uint32_t y, int page, int sample) {
+  const uint64_t base =
+      uint64_t{x} * 7 + uint64_t{y} * 131 + uint64_t(page) * 1031 + uint64_t(sample) * 15013;
+  if (volume::IsFloat(type)) return static_cast<double>(base % 65536) * 0.37 - 5000.5;
+  return static_cast<double>((base * 65599u) % 4294967296u);
+}
+
+// The bytes (native order) the fixture stores for `v`, with the same casts it uses.
+std::array<std::byte, 8> SampleBytes(double v, DataType type) {
+  std::array<std::byte, 8> out{};
+  auto put = [&](auto x) { std::memcpy(out.data(), &x, sizeof(x)); };
+  switch (type) {
+    case DataType::kUint8:
+      put(static_cast<uint8_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kUint16:
+      put(static_cast<uint16_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kUint32:
+      put(static_cast<uint32_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kInt8:
+      put(static_cast<int8_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kInt16:
+      put(static_cast<int16_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kInt32:
+      put(static_cast<int32_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kFloat32:
+      put(static_cast<float>(v));
+      break;
+    case DataType::kFloat64:
+      put(v);
+      break;
+  }
+  return out;
+}
+
+// Compares a decoded plane with the pattern; returns the number of wrong voxels (reports the
+// first few).
+int CountMismatches(std::span<const std::byte> plane, DataType type, uint32_t width,
+                    uint32_t height, int page, int sample) {
+  const size_t bytes = volume::BytesPerSample(type);
+  int wrong = 0;
+  for (uint32_t y = 0; y < height; ++y) {
+    for (uint32_t x = 0; x < width; ++x) {
+      const auto want = SampleBytes(PatternFor(type, x, y, page, sample), type);
+      const std::byte* got = plane.data() + (uint64_t{y} * width + x) * bytes;
+      if (std::memcmp(got, want.data(), bytes) != 0) {
+        if (++wrong <= 3) {
+          ADD_FAILURE() << "voxel x=" << x << " y=" << y << " page=" << page << " sample=" << sample
+                        << " differs";
+        }
+      }
+    }
+  }
+  return wrong;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Byte-level helpers for patching classic TIFF files (either byte order).
+
+std::vector<uint8_t> ReadAll(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+}
+
+void WriteAll(const fs::path& path, const std::vector<uint8_t>& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(reinterpret_cast<const char*>(bytes.data()),
+            static_cast<std::streamsize>(bytes.size()));
+}
+
+bool BigEndian(const std::vector<uint8_t>& b) { return b[0] == 'M'; }
+
+uint32_t Get(const std::vector<uint8_t>& b, size_t at, int n) {
+  uint32_t v = 0;
+  for (int i = 0; i < n; ++i) v = (v << 8) | b[at + (BigEndian(b) ? i : n - 1 - i)];
+  return v;
+}
+
+void Put(std::vector<uint8_t>& b, size_t at, int n, uint32_t v) {
+  for (int i = 0; i < n; ++i) {
+    b[at + (BigEndian(b) ? n - 1 - i : i)] = static_cast<uint8_t>(v >> (8 * i));
+  }
+}
+
+// Offset of IFD `k` in a classic TIFF.
+size_t IfdOffset(const std::vector<uint8_t>& b, int k) {
+  size_t at = Get(b, 4, 4);
+  for (int i = 0; i < k; ++i) at = Get(b, at + 2 + Get(b, at, 2) * 12, 4);
+  return at;
+}
+
+size_t NextPointerPos(const std::vector<uint8_t>& b, size_t ifd) {
+  return ifd + 2 + Get(b, ifd, 2) * 12;
+}
+
+// Position of the entry for `tag` in the IFD at `ifd`; 0 when absent.
+size_t EntryPos(const std::vector<uint8_t>& b, size_t ifd, uint16_t tag) {
+  const uint32_t n = Get(b, ifd, 2);
+  for (uint32_t i = 0; i < n; ++i) {
+    size_t e = ifd + 2 + i * 12;
+    if (Get(b, e, 2) == tag) return e;
+  }
+  return 0;
+}
+
+// Rewrites the entry for `tag` as one LONG holding `value`.
+void PatchLong(std::vector<uint8_t>& b, size_t ifd, uint16_t tag, uint32_t value) {
+  size_t e = EntryPos(b, ifd, tag);
+  ASSERT_NE(e, 0u) << "tag " << tag << " not found";
+  Put(b, e + 2, 2, TIFF_LONG);
+  Put(b, e + 4, 4, 1);
+  Put(b, e + 8, 4, value);
+}
+
+// The value of a one-valued SHORT or LONG entry.
+uint32_t EntryValue(const std::vector<uint8_t>& b, size_t ifd, uint16_t tag) {
+  size_t e = EntryPos(b, ifd, tag);
+  if (e == 0) return 0;
+  return Get(b, e + 2, 2) == TIFF_SHORT ? Get(b, e + 8, 2) : Get(b, e + 8, 4);
+}
+
+void ExpectErrorNaming(const Status& status, const fs::path& path) {
+  EXPECT_FALSE(status.ok());
+  EXPECT_NE(status.message().find(path.string()), std::string::npos) << status.ToString();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Round trips over every layout that matters.
+
+struct TypeCase {
+  const char* name;
+  uint16_t bits, format;
+  DataType dtype;
+};
+constexpr TypeCase kTypes[] = {
+    {"u8", 8, 1, DataType::kUint8},     {"i8", 8, 2, DataType::kInt8},
+    {"u16", 16, 1, DataType::kUint16},  {"i16", 16, 2, DataType::kInt16},
+    {"u32", 32, 1, DataType::kUint32},  {"i32", 32, 2, DataType::kInt32},
+    {"f32", 32, 3, DataType::kFloat32}, {"f64", 64, 3, DataType::kFloat64},
+};
+
+struct CompressionCase {
+  const char* name;
+  uint16_t compression;
+  bool predictor;  // Horizontal (2) for integers, floating point (3) for floats.
+};
+constexpr CompressionCase kCompressions[] = {
+    {"none", COMPRESSION_NONE, false},
+    {"lzw", COMPRESSION_LZW, false},
+    {"lzwpred", COMPRESSION_LZW, true},
+    {"deflate", COMPRESSION_ADOBE_DEFLATE, false},
+    {"deflatepred", COMPRESSION_ADOBE_DEFLATE, true},
+    {"olddeflate", COMPRESSION_DEFLATE, false},
+    {"zstd", COMPRESSION_ZSTD, false},
+    {"zstdpred", COMPRESSION_ZSTD, true},
+    {"packbits", COMPRESSION_PACKBITS, false},
+    {"lzma", COMPRESSION_LZMA, false},
+};
+
+struct SampleCase {
+  const char* name;
+  uint16_t samples, planar;
+};
+constexpr SampleCase kSamples[] = {
+    {"s1", 1, PLANARCONFIG_CONTIG},        {"chunky2", 2, PLANARCONFIG_CONTIG},
+    {"planar3", 3, PLANARCONFIG_SEPARATE}, {"chunky4", 4, PLANARCONFIG_CONTIG},
+    {"planar2", 2, PLANARCONFIG_SEPARATE}, {"planar4", 4, PLANARCONFIG_SEPARATE},
+    {"chunky3", 3, PLANARCONFIG_CONTIG},
+};
+
+struct FileCase {
+  std::string name;
+  TiffFixtureSpec spec;
+  DataType dtype;
+};
+
+void PrintTo(const FileCase& c, std::ostream* os) { *os << c.name; }
+
+// Every type x compression x sample layout; container (classic/BigTIFF x byte order) and storage
+// (strips of 3 rows, one strip, 16x16 tiles over a 37x21 image) rotate so each compression meets
+// every container/storage pair several times.
+std::vector<FileCase> AllCases() {
+  std::vector<FileCase> cases;
+  int i = 0;
+  for (const CompressionCase& c : kCompressions) {
+    for (const TypeCase& t : kTypes) {
+      for (const SampleCase& s : kSamples) {
+        FileCase fc;
+        TiffFixtureSpec& spec = fc.spec;
+        spec.width = 37;
+        spec.height = 21;
+        spec.pages = 2;
+        spec.samples_per_pixel = s.samples;
+        spec.planar_config = s.planar;
+        spec.bits_per_sample = t.bits;
+        spec.sample_format = t.format;
+        spec.compression = c.compression;
+        spec.predictor = c.predictor ? (t.format == 3 ? 3 : 2) : 1;
+        const int container = i % 4;
+        const int storage = (i / 4) % 3;
+        spec.big_tiff = container >= 2;
+        spec.big_endian = container % 2 == 1;
+        if (storage == 0) spec.rows_per_strip = 3;
+        if (storage == 1) spec.rows_per_strip = spec.height;
+        if (storage == 2) spec.tile_width = spec.tile_height = 16;
+        fc.dtype = t.dtype;
+        fc.name = std::string(c.name) + "_" + t.name + "_" + s.name + "_" +
+                  (spec.big_tiff ? "big" : "classic") + (spec.big_endian ? "BE" : "LE") + "_" +
+                  (storage == 0   ? "strips"
+                   : storage == 1 ? "onestrip"
+                                  : "tiles");
+        cases.push_back(std::move(fc));
+        ++i;
+      }
+    }
+  }
+  return cases;
+}
+
+class TiffFileRoundTrip : public ::testing::TestWithParam<FileCase> {
+ protected:
+  static void SetUpTestSuite() { dir_ = new fs::path(MakeTempDir("tiff-file-roundtrip")); }
+  static void TearDownTestSuite() {
+    fs::remove_all(*dir_);
+    delete dir_;
+  }
+  static fs::path* dir_;
+};
+fs::path* TiffFileRoundTrip::dir_ = nullptr;
+
+TEST_P(TiffFileRoundTrip, DecodesEveryVoxel) {
+  const FileCase& c = GetParam();
+  const TiffFixtureSpec& spec = c.spec;
+  const fs::path path = *dir_ / (c.name + ".tif");
+  const DataType type = c.dtype;
+  ASSERT_TRUE(WriteTiffFixture(path, spec, [type](uint32_t x, uint32_t y, int page, int sample) {
+    return PatternFor(type, x, y, page, sample);
+  }));
+
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  TiffFile& f = **file;
+  EXPECT_EQ(f.big_tiff(), spec.big_tiff);
+  EXPECT_EQ(f.big_endian(), spec.big_endian);
+  EXPECT_EQ(f.file_size(), fs::file_size(path));
+  ASSERT_EQ(f.ifd_count(), spec.pages);
+  for (int page = 0; page < spec.pages; ++page) {
+    const TiffIfd& ifd = f.ifd(page);
+    EXPECT_EQ(ifd.width, spec.width);
+    EXPECT_EQ(ifd.height, spec.height);
+    EXPECT_EQ(ifd.samples_per_pixel, spec.samples_per_pixel);
+    EXPECT_EQ(ifd.bits_per_sample, spec.bits_per_sample);
+    EXPECT_EQ(ifd.sample_format, spec.sample_format);
+    EXPECT_EQ(ifd.planar_config,
+              spec.samples_per_pixel > 1 ? spec.planar_config : ifd.planar_config);
+    EXPECT_EQ(ifd.compression, spec.compression);
+    EXPECT_EQ(ifd.tiled, spec.tile_width > 0);
+    ASSERT_EQ(ifd.dtype, type);
+  }
+  EXPECT_GT(f.ifd(1).offset, 0u);
+  EXPECT_NE(f.ifd(0).offset, f.ifd(1).offset);
+
+  std::vector<std::byte> plane(uint64_t{spec.width} * spec.height * volume::BytesPerSample(type));
+  // Read pages in reverse and samples interleaved, so IFD switching is exercised too.
+  for (int page = spec.pages - 1; page >= 0; --page) {
+    for (int sample = 0; sample < spec.samples_per_pixel; ++sample) {
+      std::fill(plane.begin(), plane.end(), std::byte{0xA5});
+      Status st = f.ReadPlane(page, sample, plane);
+      ASSERT_TRUE(st.ok()) << st.ToString();
+      EXPECT_EQ(CountMismatches(plane, type, spec.width, spec.height, page, sample), 0)
+          << c.name << " page " << page << " sample " << sample;
+    }
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(AllLayouts, TiffFileRoundTrip, ::testing::ValuesIn(AllCases()),
+                         [](const ::testing::TestParamInfo<FileCase>& info) {
+                           return info.param.name;
+                         });
+
+// ---------------------------------------------------------------------------------------------
+// Metadata and odd layouts.
+
+class TiffFileTest : public ::testing::Test {
+ protected:
+  void SetUp() override { dir_ = MakeTempDir("tiff-file"); }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // A small valid fixture (classic unless said otherwise).
+  fs::path Fixture(const std::string& name, TiffFixtureSpec spec = {}) {
+    fs::path path = dir_ / name;
+    EXPECT_TRUE(WriteTiffFixture(path, spec));
+    return path;
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(TiffFileTest, ReadsDescriptionResolutionAndOffsets) {
+  TiffFixtureSpec spec;
+  spec.pages = 3;
+  spec.descriptions = {"first page", "", "third"};
+  spec.x_resolution = 2000;
+  spec.y_resolution = 4000;
+  spec.resolution_unit = RESUNIT_CENTIMETER;
+  fs::path path = Fixture("meta.tif", spec);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  ASSERT_EQ((*file)->ifd_count(), 3);
+  EXPECT_EQ((*file)->path(), path);
+  EXPECT_EQ((*file)->ifd(0).description, "first page");
+  EXPECT_EQ((*file)->ifd(1).description, "");
+  EXPECT_EQ((*file)->ifd(2).description, "third");
+  EXPECT_EQ((*file)->ifd(0).resolution_unit, RESUNIT_CENTIMETER);
+  ASSERT_TRUE((*file)->ifd(0).x_resolution.has_value());
+  EXPECT_DOUBLE_EQ(*(*file)->ifd(0).x_resolution, 2000.0);
+  EXPECT_DOUBLE_EQ(*(*file)->ifd(0).y_resolution, 4000.0);
+  EXPECT_EQ((*file)->ifd(0).photometric, PHOTOMETRIC_MINISBLACK);
+  // Offsets match the chain as written in the bytes.
+  std::vector<uint8_t> bytes = ReadAll(path);
+  for (int k = 0; k < 3; ++k) EXPECT_EQ((*file)->ifd(k).offset, IfdOffset(bytes, k));
+}
+
+TEST_F(TiffFileTest, NoResolutionMeansNullopt) {
+  auto file = TiffFile::Open(Fixture("nores.tif"));
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  EXPECT_FALSE((*file)->ifd(0).x_resolution.has_value());
+  EXPECT_FALSE((*file)->ifd(0).y_resolution.has_value());
+}
+
+TEST_F(TiffFileTest, UnsupportedSampleLayoutsHaveNoDtype) {
+  // 64-bit integers: no DataType.
+  TiffFixtureSpec spec;
+  spec.bits_per_sample = 64;
+  spec.sample_format = SAMPLEFORMAT_INT;
+  fs::path path = Fixture("int64.tif", spec);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  EXPECT_FALSE((*file)->ifd(0).dtype.has_value());
+  std::vector<std::byte> plane(16 * 8 * 8);
+  Status st = (*file)->ReadPlane(0, 0, plane);
+  EXPECT_EQ(st.code(), StatusCode::kUnsupported);
+  ExpectErrorNaming(st, path);
+
+  // 1-bit bilevel, written directly with libtiff.
+  fs::path bilevel = dir_ / "bilevel.tif";
+  TIFF* tif = TIFFOpen(bilevel.c_str(), "w");
+  ASSERT_NE(tif, nullptr);
+  TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, 20);
+  TIFFSetField(tif, TIFFTAG_IMAGELENGTH, 4);
+  TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 1);
+  TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
+  TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+  TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, 4);
+  uint8_t row[3] = {0xF0, 0x0F, 0xA0};
+  for (uint32_t y = 0; y < 4; ++y) ASSERT_EQ(TIFFWriteScanline(tif, row, y, 0), 1);
+  TIFFClose(tif);
+  auto one_bit = TiffFile::Open(bilevel);
+  ASSERT_TRUE(one_bit.ok()) << one_bit.status().ToString();
+  EXPECT_EQ((*one_bit)->ifd(0).bits_per_sample, 1);
+  EXPECT_FALSE((*one_bit)->ifd(0).dtype.has_value());
+  std::vector<std::byte> small(20 * 4);
+  st = (*one_bit)->ReadPlane(0, 0, small);
+  EXPECT_EQ(st.code(), StatusCode::kUnsupported);
+  ExpectErrorNaming(st, bilevel);
+}
+
+TEST_F(TiffFileTest, DecodesJpeg) {
+  TiffFixtureSpec spec;
+  spec.width = 40;
+  spec.height = 24;
+  spec.bits_per_sample = 8;
+  spec.compression = COMPRESSION_JPEG;
+  spec.rows_per_strip = 8;  // JPEG strips are multiples of 8 rows.
+  auto smooth = [](uint32_t x, uint32_t y, int, int) { return 40.0 + 3.0 * x + 2.0 * y; };
+  fs::path path = dir_ / "jpeg.tif";
+  ASSERT_TRUE(WriteTiffFixture(path, spec, smooth));
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  EXPECT_EQ((*file)->ifd(0).compression, COMPRESSION_JPEG);
+  std::vector<std::byte> plane(40 * 24);
+  ASSERT_TRUE((*file)->ReadPlane(0, 0, plane).ok());
+  // Lossy: a smooth ramp comes back within a few levels.
+  int worst = 0;
+  for (uint32_t y = 0; y < 24; ++y) {
+    for (uint32_t x = 0; x < 40; ++x) {
+      int got = static_cast<int>(plane[y * 40 + x]);
+      worst = std::max(worst, std::abs(got - static_cast<int>(smooth(x, y, 0, 0))));
+    }
+  }
+  EXPECT_LE(worst, 6);
+}
+
+TEST_F(TiffFileTest, ConcurrentReadsAreCorrect) {
+  TiffFixtureSpec spec;
+  spec.width = 64;
+  spec.height = 48;
+  spec.pages = 6;
+  spec.samples_per_pixel = 2;
+  spec.compression = COMPRESSION_ADOBE_DEFLATE;
+  spec.rows_per_strip = 5;
+  fs::path path = dir_ / "threads.tif";
+  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int p, int s) {
+    return PatternFor(DataType::kUint16, x, y, p, s);
+  }));
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  TiffFile* f = file->get();
+  std::vector<int> wrong(6, 0);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 6; ++t) {
+    threads.emplace_back([f, t, &wrong] {
+      std::mt19937 rng(t);
+      std::vector<std::byte> plane(64 * 48 * 2);
+      for (int i = 0; i < 40; ++i) {
+        int page = static_cast<int>(rng() % 6), sample = static_cast<int>(rng() % 2);
+        if (!f->ReadPlane(page, sample, plane).ok()) {
+          ++wrong[t];
+          continue;
+        }
+        for (uint32_t y = 0; y < 48; ++y) {
+          for (uint32_t x = 0; x < 64; ++x) {
+            auto want =
+                SampleBytes(PatternFor(DataType::kUint16, x, y, page, sample), DataType::kUint16);
+            if (std::memcmp(&plane[(y * 64 + x) * 2], want.data(), 2) != 0) ++wrong[t];
+          }
+        }
+      }
+    });
+  }
+  for (auto& th : threads) th.join();
+  for (int t = 0; t < 6; ++t) EXPECT_EQ(wrong[t], 0) << "thread " << t;
+}
+
+TEST_F(TiffFileTest, HasTiffSignature) {
+  auto write = [&](const std::string& name, const std::string& head) {
+    fs::path p = dir_ / name;
+    std::ofstream(p, std::ios::binary) << head;
+    return p;
+  };
+  EXPECT_TRUE(HasTiffSignature(write("a", std::string("II*\0\x08\0\0\0", 8))));
+  EXPECT_TRUE(HasTiffSignature(write("b", std::string("MM\0*\0\0\0\x08", 8))));
+  EXPECT_TRUE(HasTiffSignature(write("c", std::string("II+\0\x08\0\0\0", 8))));
+  EXPECT_TRUE(HasTiffSignature(write("d", std::string("MM\0+\0\x08\0\0", 8))));
+  EXPECT_FALSE(HasTiffSignature(write("e", std::string("II*\x01", 4))));
+  EXPECT_FALSE(HasTiffSignature(write("f", std::string("MM*\0", 4))));
+  EXPECT_FALSE(HasTiffSignature(write("g", "")));
+  EXPECT_FALSE(HasTiffSignature(write("h", "\x89PNG\r\n")));
+  EXPECT_FALSE(HasTiffSignature(dir_ / "missing.tif"));
+  EXPECT_TRUE(HasTiffSignature(Fixture("real.tif")));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Broken input: every case is an error naming the file, never a crash or a hang.
+
+TEST_F(TiffFileTest, MissingFileAndDirectory) {
+  Result<std::unique_ptr<TiffFile>> missing = TiffFile::Open(dir_ / "nope.tif");
+  EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
+  ExpectErrorNaming(missing.status(), dir_ / "nope.tif");
+  ExpectErrorNaming(TiffFile::Open(dir_).status(), dir_);
+}
+
+TEST_F(TiffFileTest, EmptyFile) {
+  fs::path path = dir_ / "empty.tif";
+  std::ofstream(path).close();
+  ExpectErrorNaming(TiffFile::Open(path).status(), path);
+}
+
+TEST_F(TiffFileTest, NotATiff) {
+  fs::path path = dir_ / "text.tif";
+  std::ofstream(path) << "This is not a TIFF file at all, just some text.\n";
+  ExpectErrorNaming(TiffFile::Open(path).status(), path);
+  fs::path short_header = dir_ / "short.tif";
+  std::ofstream(short_header, std::ios::binary) << std::string("II*\0\x08", 5);
+  ExpectErrorNaming(TiffFile::Open(short_header).status(), short_header);
+}
+
+TEST_F(TiffFileTest, TruncatedInHalf) {
+  for (bool big_tiff : {false, true}) {
+    TiffFixtureSpec spec;
+    spec.pages = 3;
+    spec.big_tiff = big_tiff;
+    fs::path path = Fixture(big_tiff ? "half_big.tif" : "half.tif", spec);
+    std::vector<uint8_t> bytes = ReadAll(path);
+    bytes.resize(bytes.size() / 2);
+    WriteAll(path, bytes);
+    auto file = TiffFile::Open(path);
+    ExpectErrorNaming(file.status(), path);
+  }
+}
+
+TEST_F(TiffFileTest, StripBeyondEndOfFileIsCorrupt) {
+  for (bool big_endian : {false, true}) {
+    TiffFixtureSpec spec;
+    spec.rows_per_strip = spec.height;  // One strip: its offset sits in the entry.
+    spec.big_endian = big_endian;
+    fs::path path = Fixture(big_endian ? "strip_be.tif" : "strip_le.tif", spec);
+    std::vector<uint8_t> bytes = ReadAll(path);
+    const size_t ifd = IfdOffset(bytes, 0);
+    PatchLong(bytes, ifd, TIFFTAG_STRIPOFFSETS, static_cast<uint32_t>(bytes.size() - 10));
+    WriteAll(path, bytes);
+    auto file = TiffFile::Open(path);
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    std::vector<std::byte> plane(16 * 8 * 2);
+    Status st = (*file)->ReadPlane(0, 0, plane);
+    EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+    ExpectErrorNaming(st, path);
+    EXPECT_NE(st.message().find("strip 0"), std::string::npos) << st.message();
+  }
+}
+
+TEST_F(TiffFileTest, TruncatedTileIsCorrupt) {
+  TiffFixtureSpec spec;
+  spec.width = 40;
+  spec.height = 40;
+  spec.tile_width = spec.tile_height = 16;
+  spec.compression = COMPRESSION_LZW;
+  fs::path path = Fixture("tiles.tif", spec);
+  std::vector<uint8_t> bytes = ReadAll(path);
+  const size_t ifd = IfdOffset(bytes, 0);
+  // Tile offsets are an array; point the array's last entry past the end of the file.
+  const size_t e = EntryPos(bytes, ifd, TIFFTAG_TILEOFFSETS);
+  ASSERT_NE(e, 0u);
+  const uint32_t count = Get(bytes, e + 4, 4);
+  ASSERT_EQ(count, 9u);
+  const size_t array = Get(bytes, e + 8, 4);
+  Put(bytes, array + (count - 1) * 4, 4, static_cast<uint32_t>(bytes.size() + 100));
+  WriteAll(path, bytes);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  std::vector<std::byte> plane(40 * 40 * 2);
+  Status st = (*file)->ReadPlane(0, 0, plane);
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  ExpectErrorNaming(st, path);
+  EXPECT_NE(st.message().find("tile 8"), std::string::npos) << st.message();
+}
+
+TEST_F(TiffFileTest, GarbledCompressedDataIsAnError) {
+  TiffFixtureSpec spec;
+  spec.width = 64;
+  spec.height = 16;
+  spec.rows_per_strip = 16;
+  spec.compression = COMPRESSION_ADOBE_DEFLATE;
+  fs::path path = Fixture("garbled.tif", spec);
+  std::vector<uint8_t> bytes = ReadAll(path);
+  const size_t ifd = IfdOffset(bytes, 0);
+  const uint32_t offset = EntryValue(bytes, ifd, TIFFTAG_STRIPOFFSETS);
+  const uint32_t count = EntryValue(bytes, ifd, TIFFTAG_STRIPBYTECOUNTS);
+  ASSERT_GT(count, 4u);
+  for (uint32_t i = 0; i < count; ++i) bytes[offset + i] = 0xFF;
+  WriteAll(path, bytes);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  std::vector<std::byte> plane(64 * 16 * 2);
+  Status st = (*file)->ReadPlane(0, 0, plane);
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt);
+  ExpectErrorNaming(st, path);
+  EXPECT_NE(st.message().find("libtiff"), std::string::npos) << st.message();
+  // The handle stays usable for the next request (which fails the same way, not worse).
+  EXPECT_FALSE((*file)->ReadPlane(0, 0, plane).ok());
+}
+
+TEST_F(TiffFileTest, BitFlippedHeader) {
+  TiffFixtureSpec spec;
+  spec.pages = 2;
+  const fs::path good = Fixture("good.tif", spec);
+  const std::vector<uint8_t> original = ReadAll(good);
+  for (int bit = 0; bit < 64; ++bit) {
+    std::vector<uint8_t> bytes = original;
+    bytes[bit / 8] ^= static_cast<uint8_t>(1u << (bit % 8));
+    const fs::path path = dir_ / ("flip" + std::to_string(bit) + ".tif");
+    WriteAll(path, bytes);
+    auto file = TiffFile::Open(path);
+    if (bit < 32) {
+      // Signature or version damaged: never a TIFF.
+      ExpectErrorNaming(file.status(), path);
+      continue;
+    }
+    if (!file.ok()) {
+      ExpectErrorNaming(file.status(), path);
+      continue;
+    }
+    // A flipped low bit of the IFD offset may still land on something parseable: reading must
+    // then fail cleanly or succeed, never crash.
+    for (int i = 0; i < (*file)->ifd_count(); ++i) {
+      const TiffIfd& ifd = (*file)->ifd(i);
+      if (!ifd.dtype) continue;
+      std::vector<std::byte> plane(uint64_t{ifd.width} * ifd.height *
+                                   volume::BytesPerSample(*ifd.dtype));
+      Status st = (*file)->ReadPlane(i, 0, plane);
+      if (!st.ok()) ExpectErrorNaming(st, path);
+    }
+  }
+}
+
+TEST_F(TiffFileTest, IfdLoopIsAnError) {
+  for (bool big_endian : {false, true}) {
+    // A single IFD pointing at itself.
+    TiffFixtureSpec one;
+    one.big_endian = big_endian;
+    fs::path self = Fixture(big_endian ? "self_be.tif" : "self_le.tif", one);
+    std::vector<uint8_t> bytes = ReadAll(self);
+    size_t ifd0 = IfdOffset(bytes, 0);
+    Put(bytes, NextPointerPos(bytes, ifd0), 4, static_cast<uint32_t>(ifd0));
+    WriteAll(self, bytes);
+    auto file = TiffFile::Open(self);
+    EXPECT_EQ(file.status().code(), StatusCode::kCorrupt);
+    ExpectErrorNaming(file.status(), self);
+    EXPECT_NE(file.status().message().find("loop"), std::string::npos) << file.status().message();
+
+    // The third of three IFDs pointing back at the second.
+    TiffFixtureSpec three;
+    three.pages = 3;
+    three.big_endian = big_endian;
+    fs::path back = Fixture(big_endian ? "back_be.tif" : "back_le.tif", three);
+    bytes = ReadAll(back);
+    size_t ifd1 = IfdOffset(bytes, 1), ifd2 = IfdOffset(bytes, 2);
+    Put(bytes, NextPointerPos(bytes, ifd2), 4, static_cast<uint32_t>(ifd1));
+    WriteAll(back, bytes);
+    file = TiffFile::Open(back);
+    EXPECT_EQ(file.status().code(), StatusCode::kCorrupt);
+    ExpectErrorNaming(file.status(), back);
+  }
+}
+
+TEST_F(TiffFileTest, AbsurdDimensions) {
+  TiffFixtureSpec spec;
+  spec.rows_per_strip = spec.height;
+  const fs::path good = Fixture("dims.tif", spec);
+  const std::vector<uint8_t> original = ReadAll(good);
+  const size_t ifd = IfdOffset(original, 0);
+
+  std::vector<uint8_t> bytes = original;
+  PatchLong(bytes, ifd, TIFFTAG_IMAGEWIDTH, 0x7fffffff);
+  fs::path wide = dir_ / "wide.tif";
+  WriteAll(wide, bytes);
+  ExpectErrorNaming(TiffFile::Open(wide).status(), wide);
+
+  bytes = original;
+  PatchLong(bytes, ifd, TIFFTAG_IMAGEWIDTH, 70000);
+  PatchLong(bytes, ifd, TIFFTAG_IMAGELENGTH, 70000);
+  fs::path huge = dir_ / "huge.tif";
+  WriteAll(huge, bytes);
+  // Over the plane limit …
+  ExpectErrorNaming(TiffFile::Open(huge).status(), huge);
+  // … and, with the limit lifted, more than the file can hold.
+  TiffFile::Limits lifted;
+  lifted.max_plane_bytes = uint64_t{1} << 40;
+  Status st = TiffFile::Open(huge, lifted).status();
+  ExpectErrorNaming(st, huge);
+
+  bytes = original;
+  PatchLong(bytes, ifd, TIFFTAG_IMAGELENGTH, 0);
+  fs::path zero = dir_ / "zero.tif";
+  WriteAll(zero, bytes);
+  ExpectErrorNaming(TiffFile::Open(zero).status(), zero);
+}
+
+TEST_F(TiffFileTest, LimitsAreEnforced) {
+  TiffFixtureSpec spec;
+  spec.pages = 3;
+  fs::path path = Fixture("limits.tif", spec);
+  TiffFile::Limits few_ifds;
+  few_ifds.max_ifds = 2;
+  Status st = TiffFile::Open(path, few_ifds).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted);
+  ExpectErrorNaming(st, path);
+  TiffFile::Limits small_planes;
+  small_planes.max_plane_bytes = 100;  // 16x8x2 = 256 bytes per plane.
+  st = TiffFile::Open(path, small_planes).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted);
+  ExpectErrorNaming(st, path);
+  TiffFile::Limits enough;
+  enough.max_ifds = 3;
+  enough.max_plane_bytes = 256;
+  EXPECT_TRUE(TiffFile::Open(path, enough).ok());
+}
+
+TEST_F(TiffFileTest, OutOfRangeRequests) {
+  TiffFixtureSpec spec;
+  spec.pages = 2;
+  spec.samples_per_pixel = 2;
+  fs::path path = Fixture("range.tif", spec);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  std::vector<std::byte> plane(16 * 8 * 2);
+  for (auto [index, sample] : {std::pair{-1, 0}, {2, 0}, {0, -1}, {0, 2}, {1000000, 0}}) {
+    Status st = (*file)->ReadPlane(index, sample, plane);
+    EXPECT_EQ(st.code(), StatusCode::kOutOfRange) << index << "/" << sample;
+    ExpectErrorNaming(st, path);
+  }
+  std::vector<std::byte> wrong_size(16 * 8);
+  Status st = (*file)->ReadPlane(0, 0, wrong_size);
+  EXPECT_EQ(st.code(), StatusCode::kInvalidArgument);
+  ExpectErrorNaming(st, path);
+  // Raw reads beyond the end are refused too.
+  std::vector<std::byte> raw(64);
+  ExpectErrorNaming((*file)->ReadBytes((*file)->file_size() - 10, raw), path);
+  EXPECT_TRUE((*file)->ReadBytes(0, std::span<std::byte>(raw).first(8)).ok());
+  EXPECT_EQ(raw[0], std::byte{'I'});
+  // And a good read still works afterwards.
+  EXPECT_TRUE((*file)->ReadPlane(1, 1, plane).ok());
+}
+
+TEST_F(TiffFileTest, ContiguousDataOffset) {
+  TiffFixtureSpec spec;
+  spec.rows_per_strip = 3;  // Several strips, written back to back by libtiff.
+  fs::path path = Fixture("contig.tif", spec);
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  Result<uint64_t> offset = (*file)->ContiguousDataOffset(0);
+  ASSERT_TRUE(offset.ok()) << offset.status().ToString();
+  std::vector<uint8_t> bytes = ReadAll(path);
+  const size_t ifd = IfdOffset(bytes, 0);
+  const size_t e = EntryPos(bytes, ifd, TIFFTAG_STRIPOFFSETS);
+  EXPECT_EQ(*offset, Get(bytes, Get(bytes, e + 8, 4), 4));  // First entry of the offsets array.
+  // The raw bytes there are the plane (little-endian file on a little-endian host).
+  std::vector<std::byte> raw(16 * 8 * 2), decoded(16 * 8 * 2);
+  ASSERT_TRUE((*file)->ReadBytes(*offset, raw).ok());
+  ASSERT_TRUE((*file)->ReadPlane(0, 0, decoded).ok());
+  if (std::endian::native == std::endian::little) {
+    EXPECT_EQ(raw, decoded);
+  }
+
+  TiffFixtureSpec lzw = spec;
+  lzw.compression = COMPRESSION_LZW;
+  auto compressed = TiffFile::Open(Fixture("contig_lzw.tif", lzw));
+  ASSERT_TRUE(compressed.ok());
+  EXPECT_EQ((*compressed)->ContiguousDataOffset(0).status().code(), StatusCode::kUnsupported);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Real third-party files.
+
+const fs::path kTestData = OCTOSCOPE_TESTDATA;
+
+TEST(TiffFileRealTest, ScanImageBigTiff) {
+  auto file = TiffFile::Open(kTestData / "real_ometiff_misc/ScanImageBigTIFFv57.tif");
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  EXPECT_TRUE((*file)->big_tiff());
+  EXPECT_FALSE((*file)->big_endian());
+  ASSERT_EQ((*file)->ifd_count(), 4);
+  EXPECT_NE((*file)->ifd(0).software.find("SI.hChannels.channelSave = [1;2]"), std::string::npos);
+  EXPECT_EQ((*file)->ifd(1).software, "");  // Kept for IFD 0 only.
+  for (int i = 0; i < 4; ++i) {
+    EXPECT_EQ((*file)->ifd(i).width, 64u);
+    EXPECT_EQ((*file)->ifd(i).height, 64u);
+    EXPECT_EQ((*file)->ifd(i).dtype, DataType::kInt16);
+    std::vector<std::byte> plane(64 * 64 * 2);
+    EXPECT_TRUE((*file)->ReadPlane(i, 0, plane).ok());
+  }
+}
+
+TEST(TiffFileRealTest, MicroManagerIfdsBetweenImageData) {
+  auto file = TiffFile::Open(kTestData /
+                             "real_ometiff_misc/181003_multi_pos_time_course_1_MMStack.ome.tif");
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  ASSERT_EQ((*file)->ifd_count(), 20);  // 2 positions x 10 time points.
+  EXPECT_GT((*file)->ifd(0).offset, 8u);
+  std::vector<std::byte> plane(256 * 256 * 2);
+  for (int i = (*file)->ifd_count() - 1; i >= 0; --i) {
+    EXPECT_EQ((*file)->ifd(i).dtype, DataType::kUint16);
+    Status st = (*file)->ReadPlane(i, 0, plane);
+    EXPECT_TRUE(st.ok()) << st.ToString();
+  }
+}
+
+TEST(TiffFileRealTest, BigTiffDeflateOme) {
+  auto file = TiffFile::Open(kTestData / "ndev_bigtiff_ome/neuron-4Ch.tiff");
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  EXPECT_TRUE((*file)->big_tiff());
+  ASSERT_GE((*file)->ifd_count(), 4);
+  const TiffIfd& ifd = (*file)->ifd(0);
+  EXPECT_EQ(ifd.compression, COMPRESSION_ADOBE_DEFLATE);
+  EXPECT_EQ(ifd.width, 502u);
+  EXPECT_EQ(ifd.height, 623u);
+  EXPECT_NE(ifd.description.find("<OME"), std::string::npos);
+  std::vector<std::byte> plane(502 * 623 * 2);
+  for (int i = 0; i < 4; ++i) EXPECT_TRUE((*file)->ReadPlane(i, 0, plane).ok());
+}
+
+}  // namespace
+}  // namespace octoscope::io
