@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# One command from a fresh Debian 12 machine: install what is needed, build, write the built-in
+# demo specimen (a synthetic 3-channel fluorescent embryo, OME-TIFF) and run Octoscope on it.
+# Usage: bash deploy/run_demo.sh [--size X,Y,Z]   (default 256,256,128)
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+bash "$root/deploy/install_deps.sh"
+bash "$root/deploy/build.sh"
+build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
+demo_dir="${OCTOSCOPE_DEMO_DIR:-$root/out/demo}"
+demo=$("$build/octoscope" demo --out "$demo_dir" "$@")
+echo "demo specimen: $demo"
+"$build/octoscope" info --stats "$demo"

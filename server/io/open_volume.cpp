@@ -1,0 +1,80 @@
+#include "io/open_volume.h"
+
+#include <system_error>
+
+#include "io/ome_tiff_volume.h"
+#include "io/raw_volume.h"
+#include "io/slice_folder_volume.h"
+#include "io/tiff_file.h"
+#include "io/tiff_stack_volume.h"
+#include "io/voreen_vvd.h"
+#include "util/strings.h"
+
+namespace octoscope::io {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The JSON sidecar that describes `raw`: "a.raw.json" first, then "a.json".
+std::optional<fs::path> FindRawSidecar(const fs::path& raw) {
+  std::error_code ec;
+  fs::path with_suffix = raw;
+  with_suffix += ".json";
+  if (fs::is_regular_file(with_suffix, ec)) return with_suffix;
+  fs::path replaced = raw;
+  replaced.replace_extension(".json");
+  if (fs::is_regular_file(replaced, ec)) return replaced;
+  return std::nullopt;
+}
+
+Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar,
+                                                        const OpenOptions& options) {
+  if (!options.load_raw_sidecar) {
+    return UnsupportedError(sidecar.string() + ": JSON raw sidecars are not enabled");
+  }
+  OCTO_ASSIGN_OR_RETURN(RawLayout layout, options.load_raw_sidecar(sidecar));
+  return OpenRawVolume(layout, options);
+}
+
+// True when the first IFD's description is OME-XML (the OME-TIFF marker).
+bool HasOmeXml(const fs::path& path, const OpenOptions& options) {
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = options.max_plane_bytes;
+  auto file = TiffFile::Open(path, limits);
+  if (!file.ok() || (*file)->ifd_count() == 0) return false;
+  const std::string& description = (*file)->ifd(0).description;
+  return description.find("<OME") != std::string::npos ||
+         description.find(":OME") != std::string::npos;
+}
+
+}  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
+  std::error_code ec;
+  fs::file_status status = fs::status(path, ec);
+  if (ec || !fs::exists(status)) return NotFoundError(path.string() + ": no such file or folder");
+  if (fs::is_directory(status)) return OpenSliceFolder(path, options);
+  if (!fs::is_regular_file(status)) return UnsupportedError(path.string() + ": not a regular file");
+
+  // Choose by name where the name is unambiguous, else by content.
+  const std::string name = path.filename().string();
+  if (EndsWithIgnoreCase(name, ".companion.ome") || EndsWithIgnoreCase(name, ".ome") ||
+      EndsWithIgnoreCase(name, ".ome.xml")) {
+    return OpenOmeTiff(path, options);
+  }
+  if (EndsWithIgnoreCase(name, ".vvd")) {
+    OCTO_ASSIGN_OR_RETURN(RawLayout layout, ReadVoreenVvd(path));
+    return OpenRawVolume(layout, options);
+  }
+  if (EndsWithIgnoreCase(name, ".json")) return OpenRawWithSidecar(path, options);
+  if (HasTiffSignature(path)) {
+    if (HasOmeXml(path, options)) return OpenOmeTiff(path, options);
+    return OpenTiffStack(path, options);
+  }
+  if (auto sidecar = FindRawSidecar(path)) return OpenRawWithSidecar(*sidecar, options);
+  if (fs::file_size(path, ec) == 0 && !ec) return CorruptError(path.string() + ": empty file");
+  return UnsupportedError(path.string() +
+                          ": not a TIFF/OME-TIFF, and no .json or .vvd sidecar describes it");
+}
+
+}  // namespace octoscope::io
