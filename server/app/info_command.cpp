@@ -1,5 +1,6 @@
 // `octoscope info INPUT [--json] [--stats]`: what a scan is, and optionally its value ranges.
 #include <cstdio>
+#include <filesystem>
 #include <string>
 
 #include "app/commands.h"
@@ -12,11 +13,17 @@
 namespace octoscope::app {
 namespace {
 
-// One line on stderr that names the file and the problem.
+// One line on stderr, "<kind>: <file>: <problem>" (docs/cli.md). Readers name the file in their
+// messages; where one does not, the input path is added after the kind.
 int Fail(const std::string& input, const Status& status) {
-  std::string message = status.ToString();
-  if (message.find(input) == std::string::npos) message = input + ": " + message;
-  std::fprintf(stderr, "octoscope info: %s\n", message.c_str());
+  const bool names_file =
+      status.message().find(std::filesystem::path(input).filename().string()) != std::string::npos;
+  std::string line = names_file ? status.ToString() : status.WithContext(input).ToString();
+  // A message must stay one line even when a file name or library text holds a newline.
+  for (char& c : line) {
+    if (c == '\n' || c == '\r') c = ' ';
+  }
+  std::fprintf(stderr, "octoscope info: %s\n", line.c_str());
   return kExitBadInput;
 }
 

@@ -3,6 +3,7 @@
 #include <system_error>
 
 #include "io/ome_tiff_volume.h"
+#include "io/ome_xml.h"
 #include "io/raw_volume.h"
 #include "io/slice_folder_volume.h"
 #include "io/tiff_file.h"
@@ -36,17 +37,6 @@ Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar
   return OpenRawVolume(layout, options);
 }
 
-// True when the first IFD's description is OME-XML (the OME-TIFF marker).
-bool HasOmeXml(const fs::path& path, const OpenOptions& options) {
-  TiffFile::Limits limits;
-  limits.max_plane_bytes = options.max_plane_bytes;
-  auto file = TiffFile::Open(path, limits);
-  if (!file.ok() || (*file)->ifd_count() == 0) return false;
-  const std::string& description = (*file)->ifd(0).description;
-  return description.find("<OME") != std::string::npos ||
-         description.find(":OME") != std::string::npos;
-}
-
 }  // namespace
 
 Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
@@ -68,8 +58,15 @@ Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const Ope
   }
   if (EndsWithIgnoreCase(name, ".json")) return OpenRawWithSidecar(path, options);
   if (HasTiffSignature(path)) {
-    if (HasOmeXml(path, options)) return OpenOmeTiff(path, options);
-    return OpenTiffStack(path, options);
+    // Index the file once; an OME-XML root element in the first IFD makes it an OME-TIFF (whose
+    // reader may need further files), anything else is a plain/ImageJ/ScanImage stack.
+    TiffFile::Limits limits;
+    limits.max_plane_bytes = options.max_plane_bytes;
+    OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, limits));
+    if (file->ifd_count() > 0 && LooksLikeOmeXml(file->ifd(0).description)) {
+      return OpenOmeTiff(path, options);
+    }
+    return OpenTiffStack(std::move(file), options);
   }
   if (auto sidecar = FindRawSidecar(path)) return OpenRawWithSidecar(*sidecar, options);
   if (fs::file_size(path, ec) == 0 && !ec) return CorruptError(path.string() + ": empty file");

@@ -114,7 +114,15 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
   bool stop = false;              // GUARDED_BY(mutex): set when the consumer gives up.
   Status read_status;             // GUARDED_BY(mutex)
 
-  std::thread reader([&] {
+  // Ends the reader with `status`; called at most once, from the reader thread.
+  auto finish_reader = [&](Status status) {
+    std::lock_guard lock(mutex);
+    read_status = std::move(status);
+    reader_done = true;
+    cv.notify_all();
+  };
+
+  auto read_all = [&] {
     // z-major order keeps channel-interleaved files (one IFD per z and channel) sequential.
     for (int64_t z0 = 0; z0 < info.size[2]; z0 += planes_per_slab) {
       int64_t nz = std::min(planes_per_slab, info.size[2] - z0);
@@ -132,23 +140,41 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
         slab.nz = nz;
         slab.data.resize(source.SlabBytes(nz));
         Status s = source.ReadSlab(c, z0, nz, slab.data);
+        if (!s.ok()) return finish_reader(std::move(s));
         std::unique_lock lock(mutex);
-        if (!s.ok()) {
-          read_status = s;
-          reader_done = true;
-          cv.notify_all();
-          return;
-        }
         cv.wait(lock, [&] { return !full.has_value() || stop; });
         if (stop) return;
         full = std::move(slab);
         cv.notify_all();
       }
     }
-    std::lock_guard lock(mutex);
-    reader_done = true;
-    cv.notify_all();
+    finish_reader(Status::Ok());
+  };
+
+  std::thread reader([&] {
+    // Exceptions must not cross the thread boundary (std::terminate): turn them into a Status.
+    try {
+      read_all();
+    } catch (const std::bad_alloc&) {
+      finish_reader(ResourceExhaustedError("out of memory reading a slab of " +
+                                           std::to_string(planes_per_slab) + " planes"));
+    } catch (const std::exception& e) {
+      finish_reader(InternalError(std::string("reading slabs: ") + e.what()));
+    }
   });
+  // Whatever happens on this thread (an error, a throwing progress callback), stop and join the
+  // reader before the shared state above goes out of scope.
+  struct JoinGuard {
+    std::function<void()> stop_and_join;
+    ~JoinGuard() { stop_and_join(); }
+  } join_guard{[&] {
+    {
+      std::lock_guard lock(mutex);
+      stop = true;
+      cv.notify_all();
+    }
+    if (reader.joinable()) reader.join();
+  }};
 
   std::vector<Accumulator> acc(channels);
   uint64_t planes_done = 0;
@@ -174,12 +200,7 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
     empty.push_back(std::move(slab));
     cv.notify_all();
   }
-  {
-    std::lock_guard lock(mutex);
-    stop = true;
-    cv.notify_all();
-  }
-  reader.join();
+  join_guard.stop_and_join();
   if (!status.ok()) return status;
 
   VolumeStats stats;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <stdexcept>
 
 #include "io/memory_volume.h"
 
@@ -123,6 +124,31 @@ TEST(VolumeStatsTest, ReadErrorsPropagate) {
   ASSERT_FALSE(stats.ok());
   EXPECT_EQ(stats.status().code(), StatusCode::kIoError);
   EXPECT_NE(stats.status().message().find("disk.tif"), std::string::npos);
+}
+
+// A source whose reads throw (as std::vector does when a slab cannot be allocated).
+class ThrowingSource : public FailingSource {
+ public:
+  using FailingSource::FailingSource;
+  Status ReadSlab(int, int64_t, int64_t, std::span<std::byte>) override { throw std::bad_alloc(); }
+};
+
+TEST(VolumeStatsTest, ExceptionsInTheReaderThreadBecomeErrors) {
+  ThrowingSource source(Info(DataType::kUint16, 4, 4, 10, 1));
+  auto stats = ComputeVolumeStats(source, {});
+  ASSERT_FALSE(stats.ok());
+  EXPECT_EQ(stats.status().code(), StatusCode::kResourceExhausted);
+}
+
+TEST(VolumeStatsTest, AThrowingProgressCallbackStillJoinsTheReader) {
+  auto vol = MemoryVolume::Create(Info(DataType::kUint8, 8, 8, 16, 2));
+  ASSERT_TRUE(vol.ok());
+  StatsOptions options;
+  options.slab_bytes = 1;
+  options.progress = [](uint64_t done, uint64_t) {
+    if (done == 3) throw std::runtime_error("cancelled by the user");
+  };
+  EXPECT_THROW((void)ComputeVolumeStats(**vol, options), std::runtime_error);
 }
 
 TEST(MemoryVolumeTest, RejectsBadRequestsAndHugeVolumes) {
