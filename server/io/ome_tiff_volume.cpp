@@ -13,6 +13,7 @@
 
 #include "io/ome_xml.h"
 #include "io/tiff_file.h"
+#include "io/tiff_file_cache.h"
 #include "util/checked_math.h"
 #include "util/strings.h"
 
@@ -82,50 +83,6 @@ class PlaneOrder {
 
 // ----------------------------------------------------------------------------------------------
 // Open files.
-
-// A bounded set of open TIFF files, least recently used evicted first. Handles are shared, so an
-// evicted file stays open until the reads using it finish.
-class TiffFileCache {
- public:
-  TiffFileCache(TiffFile::Limits limits, size_t capacity) : limits_(limits), capacity_(capacity) {}
-
-  Result<std::shared_ptr<TiffFile>> Get(const fs::path& path) {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (std::shared_ptr<TiffFile> file = FindLocked(path)) return file;
-    }
-    // Open outside the lock: indexing a file takes a while and other files may be read meanwhile.
-    Result<std::unique_ptr<TiffFile>> opened = TiffFile::Open(path, limits_);
-    if (!opened.ok()) return opened.status();
-    std::shared_ptr<TiffFile> file(std::move(opened).value());
-    Put(path, file);
-    return file;
-  }
-
-  void Put(const fs::path& path, std::shared_ptr<TiffFile> file) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (FindLocked(path)) return;  // Another thread opened it first; keep one handle.
-    entries_.emplace_front(path, std::move(file));
-    while (entries_.size() > capacity_) entries_.pop_back();
-  }
-
- private:
-  std::shared_ptr<TiffFile> FindLocked(const fs::path& path) {
-    for (auto it = entries_.begin(); it != entries_.end(); ++it) {
-      if (it->first == path) {
-        entries_.splice(entries_.begin(), entries_, it);
-        return entries_.front().second;
-      }
-    }
-    return nullptr;
-  }
-
-  const TiffFile::Limits limits_;
-  const size_t capacity_;
-  std::mutex mutex_;
-  // Most recently used first. GUARDED_BY(mutex_).
-  std::list<std::pair<fs::path, std::shared_ptr<TiffFile>>> entries_;
-};
 
 // ----------------------------------------------------------------------------------------------
 // The source.

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "io/tiff_file.h"
+#include "io/tiff_file_cache.h"
 #include "io/tiff_stack_volume.h"
 #include "util/checked_math.h"
 #include "util/strings.h"
@@ -137,9 +138,11 @@ Result<std::optional<std::vector<FolderChannel>>> GroupByToken(
   // Every name (with the token blanked) must occur in every channel.
   std::vector<std::pair<std::string, const std::filesystem::path*>> keys;
   for (const auto& [value, members] : groups) {
-    for (const auto& [key, file] : members) {
+    for (const auto& member : members) {
+      // Not a structured binding: clang 14 (the fuzz build) cannot capture one in a lambda.
+      const std::string& key = member.first;
       if (std::none_of(keys.begin(), keys.end(), [&](const auto& k) { return k.first == key; })) {
-        keys.emplace_back(key, &file);
+        keys.emplace_back(key, &member.second);
       }
     }
   }
@@ -251,47 +254,6 @@ bool SameSliceLayout(const TiffIfd& a, const TiffIfd& b) {
          a.samples_per_pixel == b.samples_per_pixel;
 }
 
-// A bounded LRU of open TiffFile handles, keyed by slice number. Handles are shared_ptrs so that
-// an evicted handle stays valid for a reader that is still decoding from it.
-class HandleCache {
- public:
-  HandleCache(size_t capacity, TiffFile::Limits limits) : capacity_(capacity), limits_(limits) {}
-
-  Result<std::shared_ptr<TiffFile>> Get(size_t key, const std::filesystem::path& path) {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (auto it = entries_.find(key); it != entries_.end()) {
-        order_.splice(order_.begin(), order_, it->second.second);
-        return it->second.first;
-      }
-    }
-    // Open outside the lock: other threads keep reading cached files meanwhile.
-    OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> opened, TiffFile::Open(path, limits_));
-    std::shared_ptr<TiffFile> file(std::move(opened));
-    Put(key, file);
-    return file;
-  }
-
-  void Put(size_t key, std::shared_ptr<TiffFile> file) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    if (entries_.count(key) != 0) return;  // Another thread opened it first; keep that one.
-    order_.push_front(key);
-    entries_.emplace(key, std::make_pair(std::move(file), order_.begin()));
-    while (entries_.size() > capacity_) {
-      entries_.erase(order_.back());
-      order_.pop_back();
-    }
-  }
-
- private:
-  const size_t capacity_;
-  const TiffFile::Limits limits_;
-  std::mutex mutex_;
-  std::list<size_t> order_;  // GUARDED_BY(mutex_); most recently used first.
-  std::unordered_map<size_t, std::pair<std::shared_ptr<TiffFile>, std::list<size_t>::iterator>>
-      entries_;  // GUARDED_BY(mutex_).
-};
-
 class SliceFolderVolume final : public VolumeSource {
  public:
   // REQUIRES: every file of `channels` was checked to have first_ifd's layout; channels non-empty,
@@ -301,11 +263,11 @@ class SliceFolderVolume final : public VolumeSource {
       : info_(std::move(info)),
         channels_(std::move(channels)),
         layout_(first_ifd),
-        cache_(kMaxOpenSliceFiles, limits) {}
+        cache_(limits, kMaxOpenSliceFiles) {}
 
   const volume::VolumeInfo& info() const override { return info_; }
 
-  HandleCache& cache() { return cache_; }
+  TiffFileCache& cache() { return cache_; }
 
   Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
     OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
@@ -318,7 +280,7 @@ class SliceFolderVolume final : public VolumeSource {
       const std::filesystem::path& path = channels_[folder_channel].files[z];
       OCTO_ASSIGN_OR_RETURN(
           std::shared_ptr<TiffFile> file,
-          cache_.Get(folder_channel * static_cast<size_t>(info_.size[2]) + z, path));
+          cache_.Get(path));
       // The file may have been replaced since we opened the folder; never decode a plane into a
       // buffer sized for another layout.
       std::optional<int> index = SliceIfd(*file);
@@ -335,7 +297,7 @@ class SliceFolderVolume final : public VolumeSource {
   const volume::VolumeInfo info_;
   const std::vector<FolderChannel> channels_;
   const TiffIfd layout_;
-  HandleCache cache_;
+  TiffFileCache cache_;
 };
 
 }  // namespace
@@ -380,7 +342,7 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   TiffFile::Limits limits;
   limits.max_plane_bytes = options.max_plane_bytes;
   std::optional<TiffIfd> first;
-  std::vector<std::pair<size_t, std::shared_ptr<TiffFile>>> warm;  // Handles to keep cached.
+  std::vector<std::pair<std::filesystem::path, std::shared_ptr<TiffFile>>> warm;  // Handles to keep cached.
   const size_t slices = channels[0].files.size();
   for (size_t c = 0; c < channels.size(); ++c) {
     for (size_t z = 0; z < slices; ++z) {
@@ -406,7 +368,7 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
                             DescribeSlice(*first) + "; all slices must match");
       }
       if (warm.size() < static_cast<size_t>(kMaxOpenSliceFiles)) {
-        warm.emplace_back(c * slices + z, std::shared_ptr<TiffFile>(std::move(file)));
+        warm.emplace_back(path, std::shared_ptr<TiffFile>(std::move(file)));
       }
     }
   }
