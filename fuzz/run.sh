@@ -28,7 +28,8 @@ if [ -d "$testdata" ]; then
     -exec cp -f {} "$build/testdata-seeds/" \;
   seeds+=("$build/testdata-seeds")
 fi
+cd "$build"  # libFuzzer writes fuzz-N.log into the working directory.
 ASAN_OPTIONS=detect_leaks=1:allocator_may_return_null=1 \
-  "$build/tiff_ome_fuzzer" "$corpus" "${seeds[@]}" -max_total_time="$seconds" -jobs="$jobs" \
+  "$build/fuzz/tiff_ome_fuzzer" "$corpus" "${seeds[@]}" -max_total_time="$seconds" -jobs="$jobs" \
   -workers="$jobs" -rss_limit_mb=2048 -max_len=262144 -timeout=10 \
   -artifact_prefix="$root/fuzz/crashes/" -print_final_stats=1
