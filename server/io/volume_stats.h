@@ -31,7 +31,7 @@ struct VolumeStats {
 
 struct StatsOptions {
   // Target bytes per slab read (rounded to whole planes, at least one plane).
-  uint64_t slab_bytes = uint64_t{64} << 20;
+  uint64_t slab_bytes = uint64_t{4} << 20;
   // Called after each slab with (planes done, planes total) over all channels.
   std::function<void(uint64_t, uint64_t)> progress;
 };
