@@ -1,5 +1,6 @@
 #include "volume/value_map.h"
 
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -7,6 +8,9 @@
 
 namespace octoscope::volume {
 namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "ConvertToStored's sign-bit flip assumes a little-endian host");
 
 template <typename In, typename Out>
 void ConvertTyped(const ValueMap& map, const std::byte* in, std::byte* out, size_t count) {
@@ -84,6 +88,20 @@ std::string ValueMap::ToString() const {
 }
 
 void ConvertToStored(const ValueMap& map, std::span<const std::byte> in, std::span<std::byte> out) {
+  // The common case (uint8/uint16 files) is the identity: a copy.
+  if (map.file_type == map.stored_type && map.offset == 0 && map.scale == 1) {
+    std::memcpy(out.data(), in.data(), in.size());
+    return;
+  }
+  // Signed 8/16-bit: flipping the sign bit is exactly "+128" / "+32768".
+  if (map.exact() && map.file_type != map.stored_type) {
+    const size_t bytes = BytesPerSample(map.file_type);
+    std::memcpy(out.data(), in.data(), in.size());
+    for (size_t i = bytes - 1; i < out.size(); i += bytes) {
+      out[i] ^= std::byte{0x80};  // The most significant byte in little-endian order.
+    }
+    return;
+  }
   size_t count = in.size() / BytesPerSample(map.file_type);
   if (map.stored_type == DataType::kUint8) {
     ConvertFrom<uint8_t>(map, in.data(), out.data(), count);
