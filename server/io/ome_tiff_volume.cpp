@@ -1,8 +1,6 @@
 #include "io/ome_tiff_volume.h"
 
 #include <algorithm>
-#include <fstream>
-#include <list>
 #include <map>
 #include <mutex>
 #include <optional>
@@ -12,9 +10,11 @@
 #include <vector>
 
 #include "io/ome_xml.h"
+#include "io/spacing.h"
 #include "io/tiff_file.h"
 #include "io/tiff_file_cache.h"
 #include "util/checked_math.h"
+#include "util/file_reading.h"
 #include "util/strings.h"
 
 namespace octoscope::io {
@@ -102,9 +102,12 @@ struct ChannelGroup {
 
 class OmeTiffVolume final : public VolumeSource {
  public:
-  OmeTiffVolume(volume::VolumeInfo info, std::vector<fs::path> files, std::vector<PlaneRef> planes,
-                std::vector<std::pair<int, int>> channel_map, std::shared_ptr<TiffFileCache> cache)
-      : info_(std::move(info)),
+  // `name`: the file the user opened, for messages.
+  OmeTiffVolume(std::string name, volume::VolumeInfo info, std::vector<fs::path> files,
+                std::vector<PlaneRef> planes, std::vector<std::pair<int, int>> channel_map,
+                std::shared_ptr<TiffFileCache> cache)
+      : name_(std::move(name)),
+        info_(std::move(info)),
         files_(std::move(files)),
         planes_(std::move(planes)),
         channel_map_(std::move(channel_map)),
@@ -113,7 +116,7 @@ class OmeTiffVolume final : public VolumeSource {
   const volume::VolumeInfo& info() const override { return info_; }
 
   Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
-    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()).WithContext(name_));
     const auto [group, sample] = channel_map_[channel];
     const size_t plane_bytes = info_.PlaneVoxels() * volume::BytesPerSample(info_.dtype);
     for (int64_t k = 0; k < nz; ++k) {
@@ -132,14 +135,16 @@ class OmeTiffVolume final : public VolumeSource {
       Status status = (*file)->ReadPlane(
           ref.ifd, sample, out.subspan(static_cast<size_t>(k) * plane_bytes, plane_bytes));
       if (!status.ok()) {
-        return status.WithContext(Quote(path) + ": IFD " + std::to_string(ref.ifd) + " (plane z " +
-                                  std::to_string(z) + ", channel " + std::to_string(channel) + ")");
+        // ReadPlane's message already starts with "<file>: IFD <n>"; add where the plane belongs.
+        return Status(status.code(), status.message() + " (plane z " + std::to_string(z) +
+                                         ", channel " + std::to_string(channel) + ")");
       }
     }
     return Status::Ok();
   }
 
  private:
+  const std::string name_;
   const volume::VolumeInfo info_;
   const std::vector<fs::path> files_;
   // planes_[group * size_z + z] for the selected series and time point; every entry mapped.
@@ -159,22 +164,6 @@ struct XmlDocument {
   bool in_tiff = false;
 };
 
-Result<std::string> ReadTextFile(const fs::path& path) {
-  std::error_code ec;
-  uint64_t size = fs::file_size(path, ec);
-  if (ec) return IoError(Quote(path) + ": cannot read: " + ec.message());
-  if (size > kMaxOmeXmlBytes) {
-    return ResourceExhaustedError(Quote(path) + ": OME-XML file of " + std::to_string(size) +
-                                  " bytes exceeds the limit of " + std::to_string(kMaxOmeXmlBytes));
-  }
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return IoError(Quote(path) + ": cannot open");
-  std::string text(static_cast<size_t>(size), '\0');
-  in.read(text.data(), static_cast<std::streamsize>(size));
-  if (static_cast<uint64_t>(in.gcount()) != size) return IoError(Quote(path) + ": short read");
-  return text;
-}
-
 // Loads the OME-XML held by `path` (a TIFF or an XML file) without following references.
 Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache) {
   std::error_code ec;
@@ -193,7 +182,7 @@ Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache) {
       return UnsupportedError(Quote(path) + ": not an OME-TIFF (no OME-XML in ImageDescription)");
     }
   } else {
-    OCTO_ASSIGN_OR_RETURN(xml, ReadTextFile(path));
+    OCTO_ASSIGN_OR_RETURN(xml, ReadSmallFile(path, kMaxOmeXmlBytes));
     if (!LooksLikeOmeXml(xml)) {
       return UnsupportedError(Quote(path) + ": neither a TIFF nor an OME-XML document");
     }
@@ -308,27 +297,11 @@ std::vector<ChannelGroup> MakeChannelGroups(const OmePixels& pixels, int first_p
   return groups;
 }
 
-Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOptions& options) {
-  const fs::path path = fs::absolute(input).lexically_normal();
-  TiffFile::Limits limits;
-  limits.max_plane_bytes = options.max_plane_bytes;
-  auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles);
+// The steps of Open: check the selected series -> resolve files -> build runs -> plane table ->
+// verify pages -> build info. Each takes `source` (the file holding the XML) for its messages.
 
-  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadMetadata(path, *cache));
-  const std::string source = Quote(doc.source);
-  const std::vector<OmeImage>& images = doc.metadata.images;
-  const int series_count = static_cast<int>(std::min<size_t>(images.size(), INT32_MAX));
-  if (options.series < 0 || options.series >= series_count) {
-    return OutOfRangeError(source + ": series " + std::to_string(options.series) +
-                           " requested, the file has " + std::to_string(series_count) +
-                           " series (OME Images)");
-  }
-  const OmePixels& pixels = images[options.series].pixels;
-  if (options.time < 0 || options.time >= pixels.size_time) {
-    return OutOfRangeError(source + ": time point " + std::to_string(options.time) +
-                           " requested, series " + std::to_string(options.series) + " has " +
-                           std::to_string(pixels.size_time) + " (SizeT)");
-  }
+// Checks the series' sizes against the limits before any table is sized by them.
+Status CheckPixels(const std::string& source, const OmePixels& pixels, const OpenOptions& options) {
   const size_t bytes_per_sample = volume::BytesPerSample(pixels.type);
   std::optional<uint64_t> plane_bytes =
       CheckedProduct({static_cast<uint64_t>(pixels.size_x), static_cast<uint64_t>(pixels.size_y),
@@ -345,9 +318,8 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
     return CorruptError(source + ": image " + std::to_string(options.series) +
                         " has no TiffData: no planes are stored");
   }
-
-  // Bound the tables built below before building them (SizeC sizes the channel list; Z x C the
-  // plane table; Z x C x T the walk over TiffData).
+  // Bound the tables built later (SizeC sizes the channel list; Z x C the plane table; Z x C x T
+  // the walk over TiffData).
   std::optional<uint64_t> declared_planes =
       CheckedProduct({static_cast<uint64_t>(pixels.size_z), static_cast<uint64_t>(pixels.size_c),
                       static_cast<uint64_t>(pixels.size_time)});
@@ -362,49 +334,47 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
         std::to_string(kMaxChannels) + " channels, " + std::to_string(kMaxPlanesPerTimePoint) +
         " planes per time point, " + std::to_string(kMaxPlanesPerSeries) + " in all)");
   }
+  return Status::Ok();
+}
 
-  // Resolve files; learn the first page's sample count (needed when Channel elements are absent).
-  FileResolver resolver(doc, pixels);
-  std::vector<int> td_files;
-  for (const OmeTiffData& td : pixels.tiff_data) {
-    OCTO_ASSIGN_OR_RETURN(int file, resolver.Resolve(td));
-    td_files.push_back(file);
-  }
-  const std::vector<fs::path>& files = resolver.files();
-  std::vector<std::optional<int>> ifd_counts(files.size());
-  // Opens file `index` (checks existence first for a clear message) and records its page count.
-  auto open_file = [&](int index) -> Result<std::shared_ptr<TiffFile>> {
+// The files a series' TiffData name, opened on demand through the cache; remembers the IFD count
+// of each file opened so far.
+class PageFiles {
+ public:
+  PageFiles(std::string source, std::vector<fs::path> files, TiffFileCache& cache)
+      : source_(std::move(source)),
+        files_(std::move(files)),
+        cache_(cache),
+        ifd_counts_(files_.size()) {}
+
+  const std::vector<fs::path>& files() const { return files_; }
+  // nullopt until file `index` was opened.
+  std::optional<int> ifd_count(int index) const { return ifd_counts_[index]; }
+
+  // Opens file `index` (checking existence first, for a clear message).
+  Result<std::shared_ptr<TiffFile>> Open(int index) {
     std::error_code ec;
-    if (!fs::is_regular_file(files[index], ec)) {
-      return NotFoundError(source + ": OME-XML references " + Quote(files[index]) +
+    if (!fs::is_regular_file(files_[index], ec)) {
+      return NotFoundError(source_ + ": OME-XML references " + Quote(files_[index]) +
                            ", which does not exist");
     }
-    Result<std::shared_ptr<TiffFile>> file = cache->Get(files[index]);
-    if (!file.ok()) return file.status();
-    ifd_counts[index] = (*file)->ifd_count();
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, cache_.Get(files_[index]));
+    ifd_counts_[index] = file->ifd_count();
     return file;
-  };
-
-  int first_page_samples = 1;
-  {
-    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> first, open_file(td_files[0]));
-    int64_t ifd = pixels.tiff_data[0].ifd.value_or(0);
-    if (ifd < first->ifd_count()) {
-      first_page_samples = first->ifd(static_cast<int>(ifd)).samples_per_pixel;
-    }
   }
-  const std::vector<ChannelGroup> groups = MakeChannelGroups(pixels, first_page_samples);
-  const int64_t group_count = static_cast<int64_t>(groups.size());
-  const std::array<int64_t, 3> sizes_zct{pixels.size_z, group_count, pixels.size_time};
-  std::optional<uint64_t> total_planes =
-      CheckedProduct({static_cast<uint64_t>(sizes_zct[0]), static_cast<uint64_t>(sizes_zct[1]),
-                      static_cast<uint64_t>(sizes_zct[2])});
-  if (!total_planes || *total_planes > kMaxPlanesPerSeries) {  // Cannot happen: C_eff <= SizeC.
-    return InternalError(source + ": plane count check failed");
-  }
-  const PlaneOrder order(pixels.dimension_order, sizes_zct);
 
-  // Pass 1: each TiffData becomes a run of planes in consecutive IFDs of one file.
+ private:
+  const std::string source_;
+  const std::vector<fs::path> files_;
+  TiffFileCache& cache_;
+  std::vector<std::optional<int>> ifd_counts_;
+};
+
+// Step 2: each TiffData becomes a run of planes in consecutive IFDs of one file.
+Result<std::vector<PlaneRun>> BuildRuns(const std::string& source, const OmePixels& pixels,
+                                        const std::vector<int>& td_files, const PlaneOrder& order,
+                                        uint64_t total_planes, int64_t group_count,
+                                        PageFiles& files) {
   std::vector<PlaneRun> runs;
   uint64_t mapped_total = 0;
   for (size_t i = 0; i < pixels.tiff_data.size(); ++i) {
@@ -418,7 +388,7 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
     run.file = td_files[i];
     run.ifd = td.ifd.value_or(0);
     run.start = order.Index({td.first_z, td.first_c, td.first_t});
-    const uint64_t remaining_planes = *total_planes - run.start;
+    const uint64_t remaining_planes = total_planes - run.start;
     if (td.plane_count) {
       run.count = static_cast<uint64_t>(*td.plane_count);
     } else if (td.ifd) {
@@ -427,34 +397,40 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
       run.count = remaining_planes;  // The sole TiffData: every plane, in order.
     } else {
       // All remaining pages of the file.
-      if (!ifd_counts[run.file]) {
-        Result<std::shared_ptr<TiffFile>> opened = open_file(run.file);
+      if (!files.ifd_count(run.file)) {
+        Result<std::shared_ptr<TiffFile>> opened = files.Open(run.file);
         if (!opened.ok()) return opened.status();
       }
-      run.count = std::min<uint64_t>(remaining_planes,
-                                     static_cast<uint64_t>(std::max(0, *ifd_counts[run.file])));
+      run.count = std::min<uint64_t>(
+          remaining_planes, static_cast<uint64_t>(std::max(0, *files.ifd_count(run.file))));
     }
     if (run.count > remaining_planes) {
       return CorruptError(what + ": PlaneCount " + std::to_string(run.count) + " from plane " +
                           std::to_string(run.start) + " runs past the image's " +
-                          std::to_string(*total_planes) + " planes");
+                          std::to_string(total_planes) + " planes");
     }
     if (run.count > 0 &&
         static_cast<uint64_t>(run.ifd) + run.count - 1 > static_cast<uint64_t>(kMaxIfdIndex)) {
       return CorruptError(what + ": IFD index beyond 2^31");
     }
     mapped_total += run.count;
-    if (mapped_total > *total_planes) {
+    if (mapped_total > total_planes) {
       return CorruptError(source + ": TiffData elements map more planes than the image's " +
-                          std::to_string(*total_planes));
+                          std::to_string(total_planes));
     }
     runs.push_back(run);
   }
+  return runs;
+}
 
-  // The plane table of the selected time point; remember which files it needs.
-  const int64_t size_z = pixels.size_z;
+// Step 3: the plane table of the selected time point (planes[group * size_z + z]); marks in
+// `needed` the files it uses. Errors when a plane is not mapped.
+Result<std::vector<PlaneRef>> BuildPlaneTable(const std::string& source,
+                                              const std::vector<PlaneRun>& runs,
+                                              const PlaneOrder& order, int64_t size_z,
+                                              int64_t group_count, const OpenOptions& options,
+                                              std::vector<bool>& needed) {
   std::vector<PlaneRef> planes(static_cast<size_t>(group_count * size_z));
-  std::vector<bool> needed(files.size(), false);
   for (const PlaneRun& run : runs) {
     for (uint64_t k = 0; k < run.count; ++k) {
       std::array<int64_t, 3> zct = order.Coordinates(run.start + k);
@@ -475,13 +451,20 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
       }
     }
   }
+  return planes;
+}
 
-  // Pass 2: verify pages. Files the selected time point needs are opened; runs in files opened
-  // anyway are checked too, so an XML claiming more pages than a file holds is caught early.
-  for (size_t f = 0; f < files.size(); ++f) {
-    if (!needed[f] && !ifd_counts[f]) continue;
-    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, open_file(static_cast<int>(f)));
-    const std::string name = Quote(files[f]);
+// Step 4: verifies the pages of the runs. Files the selected time point needs are opened; runs
+// in files opened anyway are checked too, so an XML claiming more pages than a file holds is
+// caught early.
+Status VerifyPages(const std::string& source, const OmePixels& pixels,
+                   const std::vector<PlaneRun>& runs, const PlaneOrder& order,
+                   const std::vector<ChannelGroup>& groups, const std::vector<bool>& needed,
+                   PageFiles& files) {
+  for (size_t f = 0; f < files.files().size(); ++f) {
+    if (!needed[f] && !files.ifd_count(static_cast<int>(f))) continue;
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, files.Open(static_cast<int>(f)));
+    const std::string name = Quote(files.files()[f]);
     for (const PlaneRun& run : runs) {
       if (run.file != static_cast<int>(f) || run.count == 0) continue;
       const uint64_t last = static_cast<uint64_t>(run.ifd) + run.count - 1;
@@ -522,12 +505,18 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
       }
     }
   }
+  return Status::Ok();
+}
 
+// Step 5: the volume's info (channels expanded from the groups, spacing with the overrides) and
+// the map channel -> (group, sample).
+volume::VolumeInfo BuildInfo(const OmePixels& pixels, const std::vector<ChannelGroup>& groups,
+                             const OpenOptions& options, int series_count,
+                             std::vector<std::pair<int, int>>& channel_map) {
   volume::VolumeInfo info;
   info.format = "ome-tiff";
   info.size = {pixels.size_x, pixels.size_y, pixels.size_z};
   info.dtype = pixels.type;
-  std::vector<std::pair<int, int>> channel_map;
   for (size_t g = 0; g < groups.size(); ++g) {
     const ChannelGroup& group = groups[g];
     static constexpr volume::Rgba kRgb[3] = {{255, 0, 0, 255}, {0, 255, 0, 255}, {0, 0, 255, 255}};
@@ -541,18 +530,85 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
       channel_map.emplace_back(static_cast<int>(g), s);
     }
   }
-  for (int a = 0; a < 3; ++a) {
-    info.spacing_um[a] = options.spacing_um[a] ? options.spacing_um[a] : pixels.physical_size_um[a];
-  }
+  info.spacing_um = pixels.physical_size_um;
+  ApplySpacingOverrides(info, options);
   info.series_count = series_count;
   info.series = options.series;
   info.time_points = static_cast<int>(pixels.size_time);  // <= kMaxPlanesPerSeries < 2^31.
   info.time = options.time;
+  return info;
+}
+
+Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOptions& options) {
+  std::error_code ec;
+  const fs::path absolute = fs::absolute(input, ec);
+  if (ec) return IoError(Quote(input) + ": cannot resolve the path: " + ec.message());
+  const fs::path path = absolute.lexically_normal();
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = options.max_plane_bytes;
+  auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles);
+
+  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadMetadata(path, *cache));
+  const std::string source = Quote(doc.source);
+  const std::vector<OmeImage>& images = doc.metadata.images;
+  const int series_count = static_cast<int>(std::min<size_t>(images.size(), INT32_MAX));
+  if (options.series < 0 || options.series >= series_count) {
+    return OutOfRangeError(source + ": series " + std::to_string(options.series) +
+                           " requested, the file has " + std::to_string(series_count) +
+                           " series (OME Images)");
+  }
+  const OmePixels& pixels = images[options.series].pixels;
+  if (options.time < 0 || options.time >= pixels.size_time) {
+    return OutOfRangeError(source + ": time point " + std::to_string(options.time) +
+                           " requested, series " + std::to_string(options.series) + " has " +
+                           std::to_string(pixels.size_time) + " (SizeT)");
+  }
+  OCTO_RETURN_IF_ERROR(CheckPixels(source, pixels, options));
+
+  // Step 1: resolve files; learn the first page's sample count (needed when Channel elements are
+  // absent).
+  FileResolver resolver(doc, pixels);
+  std::vector<int> td_files;
+  for (const OmeTiffData& td : pixels.tiff_data) {
+    OCTO_ASSIGN_OR_RETURN(int file, resolver.Resolve(td));
+    td_files.push_back(file);
+  }
+  PageFiles files(source, resolver.files(), *cache);
+  int first_page_samples = 1;
+  {
+    OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> first, files.Open(td_files[0]));
+    int64_t ifd = pixels.tiff_data[0].ifd.value_or(0);
+    if (ifd < first->ifd_count()) {
+      first_page_samples = first->ifd(static_cast<int>(ifd)).samples_per_pixel;
+    }
+  }
+  const std::vector<ChannelGroup> groups = MakeChannelGroups(pixels, first_page_samples);
+  const int64_t group_count = static_cast<int64_t>(groups.size());
+  const std::array<int64_t, 3> sizes_zct{pixels.size_z, group_count, pixels.size_time};
+  std::optional<uint64_t> total_planes =
+      CheckedProduct({static_cast<uint64_t>(sizes_zct[0]), static_cast<uint64_t>(sizes_zct[1]),
+                      static_cast<uint64_t>(sizes_zct[2])});
+  if (!total_planes || *total_planes > kMaxPlanesPerSeries) {  // Cannot happen: C_eff <= SizeC.
+    return InternalError(source + ": plane count check failed");
+  }
+  const PlaneOrder order(pixels.dimension_order, sizes_zct);
+
+  OCTO_ASSIGN_OR_RETURN(std::vector<PlaneRun> runs, BuildRuns(source, pixels, td_files, order,
+                                                              *total_planes, group_count, files));
+  std::vector<bool> needed(files.files().size(), false);
+  OCTO_ASSIGN_OR_RETURN(
+      std::vector<PlaneRef> planes,
+      BuildPlaneTable(source, runs, order, pixels.size_z, group_count, options, needed));
+  OCTO_RETURN_IF_ERROR(VerifyPages(source, pixels, runs, order, groups, needed, files));
+
+  std::vector<std::pair<int, int>> channel_map;
+  volume::VolumeInfo info = BuildInfo(pixels, groups, options, series_count, channel_map);
   Status valid = info.Validate();
   if (!valid.ok()) return valid.WithContext(source);
 
-  return std::unique_ptr<VolumeSource>(std::make_unique<OmeTiffVolume>(
-      std::move(info), files, std::move(planes), std::move(channel_map), std::move(cache)));
+  return std::unique_ptr<VolumeSource>(
+      std::make_unique<OmeTiffVolume>(path.string(), std::move(info), files.files(),
+                                      std::move(planes), std::move(channel_map), std::move(cache)));
 }
 
 }  // namespace

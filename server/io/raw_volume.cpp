@@ -14,7 +14,10 @@
 #include <utility>
 #include <vector>
 
+#include "io/spacing.h"
+#include "util/byte_swap.h"
 #include "util/checked_math.h"
+#include "util/file_reading.h"
 
 namespace octoscope::io {
 namespace {
@@ -23,15 +26,6 @@ namespace {
 constexpr uint64_t kInterleavedChunkBytes = uint64_t{4} << 20;
 
 std::string Num(uint64_t v) { return std::to_string(v); }
-
-// Reverses the byte order of every `width`-byte sample in `data`.
-void SwapBytes(std::span<std::byte> data, size_t width) {
-  if (width <= 1) return;
-  for (size_t i = 0; i + width <= data.size(); i += width) {
-    std::reverse(data.begin() + static_cast<std::ptrdiff_t>(i),
-                 data.begin() + static_cast<std::ptrdiff_t>(i + width));
-  }
-}
 
 // Owns a read-only file descriptor.
 class Fd {
@@ -63,7 +57,8 @@ class RawVolume final : public VolumeSource {
   const volume::VolumeInfo& info() const override { return info_; }
 
   Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
-    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    OCTO_RETURN_IF_ERROR(
+        CheckSlabRequest(info_, channel, z0, nz, out.size()).WithContext(path_.string()));
     const size_t bps = volume::BytesPerSample(info_.dtype);
     const uint64_t plane_voxels = info_.PlaneVoxels();
     if (!interleaved_) {
@@ -74,7 +69,7 @@ class RawVolume final : public VolumeSource {
     } else {
       OCTO_RETURN_IF_ERROR(ReadInterleaved(channel, z0, nz, out));
     }
-    if (swap_) SwapBytes(out, bps);
+    if (swap_) SwapBytesInPlace(out, bps);
     return Status::Ok();
   }
 
@@ -104,22 +99,7 @@ class RawVolume final : public VolumeSource {
 
   // Fills `out` from file offset `offset`; pread keeps no shared offset, so threads don't race.
   Status ReadAt(uint64_t offset, std::span<std::byte> out) const {
-    size_t got = 0;
-    while (got < out.size()) {
-      ssize_t r =
-          ::pread(fd_->get(), out.data() + got, out.size() - got, static_cast<off_t>(offset + got));
-      if (r < 0) {
-        if (errno == EINTR) continue;
-        return IoError(path_.string() + ": read of " + Num(out.size()) + " bytes at offset " +
-                       Num(offset) + " failed: " + std::strerror(errno));
-      }
-      if (r == 0) {
-        return CorruptError(path_.string() + ": file ended at offset " + Num(offset + got) +
-                            " (it was shortened after opening?)");
-      }
-      got += static_cast<size_t>(r);
-    }
-    return Status::Ok();
+    return ReadFully(fd_->get(), offset, out, path_.string());
   }
 
   const volume::VolumeInfo info_;
@@ -132,24 +112,25 @@ class RawVolume final : public VolumeSource {
 
 }  // namespace
 
+// Layouts come from a file (a JSON sidecar, a Voreen .vvd), so impossible values in them are
+// reported as corruption of that file, not as a caller's invalid argument.
 Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
                                                     const OpenOptions& options) {
   const std::string name = layout.data_file.string();
   for (int axis = 0; axis < 3; ++axis) {
     if (layout.size[axis] < 1) {
-      return InvalidArgumentError(name + ": raw size along " + std::string(1, "xyz"[axis]) +
-                                  " is " + std::to_string(layout.size[axis]) + ", must be >= 1");
+      return CorruptError(name + ": raw size along " + std::string(1, "xyz"[axis]) + " is " +
+                          std::to_string(layout.size[axis]) + ", must be >= 1");
     }
   }
   if (layout.channels < 1) {
-    return InvalidArgumentError(name + ": raw channel count is " + std::to_string(layout.channels) +
-                                ", must be >= 1");
+    return CorruptError(name + ": raw channel count is " + std::to_string(layout.channels) +
+                        ", must be >= 1");
   }
   if (!layout.channel_names.empty() &&
       layout.channel_names.size() != static_cast<size_t>(layout.channels)) {
-    return InvalidArgumentError(name + ": " + std::to_string(layout.channel_names.size()) +
-                                " channel names for " + std::to_string(layout.channels) +
-                                " channels");
+    return CorruptError(name + ": " + std::to_string(layout.channel_names.size()) +
+                        " channel names for " + std::to_string(layout.channels) + " channels");
   }
   if (options.series != 0 || options.time != 0) {
     return OutOfRangeError(name +
@@ -168,11 +149,11 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
   std::optional<uint64_t> need =
       voxel_bytes ? CheckedAdd(*voxel_bytes, layout.header_bytes) : std::nullopt;
   if (!need || *need > static_cast<uint64_t>(INT64_MAX)) {
-    return InvalidArgumentError(
-        name + ": raw layout " + std::to_string(layout.size[0]) + "x" +
-        std::to_string(layout.size[1]) + "x" + std::to_string(layout.size[2]) + "x" +
-        std::to_string(layout.channels) + " " + std::string(volume::NumpyName(layout.dtype)) +
-        " overflows a 64-bit byte count");
+    return CorruptError(name + ": raw layout " + std::to_string(layout.size[0]) + "x" +
+                        std::to_string(layout.size[1]) + "x" + std::to_string(layout.size[2]) +
+                        "x" + std::to_string(layout.channels) + " " +
+                        std::string(volume::NumpyName(layout.dtype)) +
+                        " overflows a 64-bit byte count");
   }
   if (*plane_bytes > options.max_plane_bytes) {
     return ResourceExhaustedError(name + ": one plane is " + Num(*plane_bytes) +
@@ -190,7 +171,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
   if (::fstat(fd->get(), &st) != 0) {
     return IoError(name + ": cannot stat raw data file: " + std::strerror(errno));
   }
-  if (!S_ISREG(st.st_mode)) return InvalidArgumentError(name + ": not a regular file");
+  if (!S_ISREG(st.st_mode)) return UnsupportedError(name + ": not a regular file");
   const uint64_t file_size = static_cast<uint64_t>(st.st_size);
   if (file_size < *need) {
     return CorruptError(name + ": raw file is truncated: it holds " + Num(file_size) +
@@ -206,10 +187,8 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
   for (size_t c = 0; c < layout.channel_names.size(); ++c) {
     info.channels[c].name = layout.channel_names[c];
   }
-  for (int axis = 0; axis < 3; ++axis) {
-    info.spacing_um[axis] =
-        options.spacing_um[axis] ? options.spacing_um[axis] : layout.spacing_um[axis];
-  }
+  info.spacing_um = layout.spacing_um;
+  ApplySpacingOverrides(info, options);
   if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
   return std::unique_ptr<VolumeSource>(
       new RawVolume(std::move(info), layout.data_file, std::move(fd), layout));

@@ -2,19 +2,16 @@
 
 #include <algorithm>
 #include <array>
-#include <cmath>
 #include <cstdint>
-#include <list>
 #include <map>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <system_error>
-#include <unordered_map>
 #include <utility>
 #include <vector>
 
+#include "io/spacing.h"
 #include "io/tiff_file.h"
 #include "io/tiff_file_cache.h"
 #include "io/tiff_stack_volume.h"
@@ -203,30 +200,12 @@ Result<std::vector<FolderChannel>> SplitFlatFolder(
   return std::vector<FolderChannel>{{"", files}};
 }
 
-std::optional<double> PositiveFinite(std::optional<double> v) {
-  if (v && std::isfinite(*v) && *v > 0) return v;
-  return std::nullopt;
-}
-
-// Spacing from one slice's tags: ImageJ's description (unit=, spacing=) with the resolution tags
-// in that unit; else a centimetre ResolutionUnit. Inch and unitless resolutions give nothing
-// (TIFF writers put 72 dpi there by default, which says nothing about a microscope).
-std::array<std::optional<double>, 3> SpacingFromIfd(const TiffIfd& ifd) {
-  std::array<std::optional<double>, 3> spacing;
-  auto from_resolution = [&](double um_per_unit) {
-    if (auto r = PositiveFinite(ifd.x_resolution)) spacing[0] = PositiveFinite(um_per_unit / *r);
-    if (auto r = PositiveFinite(ifd.y_resolution)) spacing[1] = PositiveFinite(um_per_unit / *r);
-  };
-  // The same ImageJ rules as single-file ImageJ stacks (tiff_stack_volume.h).
-  if (std::optional<ImageJDescription> ij = ParseImageJDescription(ifd.description)) {
-    if (std::optional<double> um_per_unit = MicrometresPerUnit(ij->unit)) {
-      from_resolution(*um_per_unit);
-      if (ij->spacing) spacing[2] = PositiveFinite(std::fabs(*ij->spacing) * *um_per_unit);
-      return spacing;
-    }
-  }
-  if (ifd.resolution_unit == 3) from_resolution(1e4);  // Pixels per centimetre.
-  return spacing;
+// Spacing from one slice's tags, by the TIFF page rules of io/spacing.h (ImageJ's unit= and
+// spacing=, else a centimetre resolution). `description`: the slice page's ImageDescription.
+std::array<std::optional<double>, 3> SpacingFromSlice(const TiffIfd& ifd,
+                                                      std::string_view description) {
+  const std::optional<ImageJDescription> ij = ParseImageJDescription(description);
+  return TiffPageSpacing(ifd, ij ? &*ij : nullptr);
 }
 
 std::string DescribeSlice(const TiffIfd& ifd) {
@@ -258,9 +237,10 @@ class SliceFolderVolume final : public VolumeSource {
  public:
   // REQUIRES: every file of `channels` was checked to have first_ifd's layout; channels non-empty,
   // all with the same number of files.
-  SliceFolderVolume(volume::VolumeInfo info, std::vector<FolderChannel> channels,
+  SliceFolderVolume(std::string name, volume::VolumeInfo info, std::vector<FolderChannel> channels,
                     const TiffIfd& first_ifd, TiffFile::Limits limits)
-      : info_(std::move(info)),
+      : name_(std::move(name)),
+        info_(std::move(info)),
         channels_(std::move(channels)),
         layout_(first_ifd),
         cache_(limits, kMaxOpenSliceFiles) {}
@@ -270,7 +250,7 @@ class SliceFolderVolume final : public VolumeSource {
   TiffFileCache& cache() { return cache_; }
 
   Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
-    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()));
+    OCTO_RETURN_IF_ERROR(CheckSlabRequest(info_, channel, z0, nz, out.size()).WithContext(name_));
     const int samples = layout_.samples_per_pixel;
     const size_t folder_channel = static_cast<size_t>(channel / samples);
     const int sample = channel % samples;
@@ -278,9 +258,7 @@ class SliceFolderVolume final : public VolumeSource {
     for (int64_t i = 0; i < nz; ++i) {
       const size_t z = static_cast<size_t>(z0 + i);
       const std::filesystem::path& path = channels_[folder_channel].files[z];
-      OCTO_ASSIGN_OR_RETURN(
-          std::shared_ptr<TiffFile> file,
-          cache_.Get(path));
+      OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, cache_.Get(path));
       // The file may have been replaced since we opened the folder; never decode a plane into a
       // buffer sized for another layout.
       std::optional<int> index = SliceIfd(*file);
@@ -294,6 +272,7 @@ class SliceFolderVolume final : public VolumeSource {
   }
 
  private:
+  const std::string name_;  // The folder, for messages.
   const volume::VolumeInfo info_;
   const std::vector<FolderChannel> channels_;
   const TiffIfd layout_;
@@ -342,7 +321,9 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   TiffFile::Limits limits;
   limits.max_plane_bytes = options.max_plane_bytes;
   std::optional<TiffIfd> first;
-  std::vector<std::pair<std::filesystem::path, std::shared_ptr<TiffFile>>> warm;  // Handles to keep cached.
+  std::string first_description;  // The first slice page's ImageDescription (for its spacing).
+  // Handles to keep cached.
+  std::vector<std::pair<std::filesystem::path, std::shared_ptr<TiffFile>>> warm;
   const size_t slices = channels[0].files.size();
   for (size_t c = 0; c < channels.size(); ++c) {
     for (size_t z = 0; z < slices; ++z) {
@@ -362,6 +343,8 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
                                   std::to_string(ifd.sample_format) + ")");
         }
         first = ifd;
+        // The index keeps IFD 0's description only; a slice after a thumbnail is read here.
+        OCTO_ASSIGN_OR_RETURN(first_description, file->Description(*index));
       } else if (!SameSliceLayout(ifd, *first)) {
         return CorruptError(path.string() + ": slice is " + DescribeSlice(ifd) + ", but " +
                             channels[0].files[0].filename().string() + " is " +
@@ -387,14 +370,12 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
       info.channels.push_back({channel_name, std::nullopt});
     }
   }
-  info.spacing_um = SpacingFromIfd(*first);
-  for (int axis = 0; axis < 3; ++axis) {
-    if (options.spacing_um[axis]) info.spacing_um[axis] = options.spacing_um[axis];
-  }
+  info.spacing_um = SpacingFromSlice(*first, first_description);
+  ApplySpacingOverrides(info, options);
   if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
 
-  auto volume =
-      std::make_unique<SliceFolderVolume>(std::move(info), std::move(channels), *first, limits);
+  auto volume = std::make_unique<SliceFolderVolume>(name, std::move(info), std::move(channels),
+                                                    *first, limits);
   for (auto& [key, file] : warm) volume->cache().Put(key, std::move(file));
   return std::unique_ptr<VolumeSource>(std::move(volume));
 }

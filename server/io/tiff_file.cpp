@@ -16,7 +16,9 @@
 #include <unordered_set>
 #include <utility>
 
+#include "util/byte_swap.h"
 #include "util/checked_math.h"
+#include "util/file_reading.h"
 
 namespace octoscope::io {
 namespace {
@@ -108,20 +110,6 @@ std::optional<volume::DataType> DataTypeOf(uint16_t bits, uint16_t format) {
   }
 }
 
-// Reads exactly out.size() bytes at `offset`; false on error or end of file.
-bool PreadAll(int fd, uint64_t offset, std::byte* out, size_t size) {
-  while (size > 0) {
-    ssize_t n =
-        ::pread(fd, out, std::min<size_t>(size, size_t{1} << 30), static_cast<off_t>(offset));
-    if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) return false;
-    out += n;
-    size -= static_cast<size_t>(n);
-    offset += static_cast<uint64_t>(n);
-  }
-  return true;
-}
-
 uint16_t Load16(const std::byte* p, bool big_endian) {
   auto b = [&](int i) { return static_cast<uint16_t>(p[i]); };
   return big_endian ? static_cast<uint16_t>((b(0) << 8) | b(1))
@@ -163,14 +151,40 @@ void ExtractSample(const std::byte* src, int spp, int sample, size_t bytes, size
   }
 }
 
+// Everything ReadPlane needs to know about one request, worked out once.
+struct PlaneJob {
+  const std::string& name;  // The file, for messages.
+  int index;                // The IFD.
+  const TiffIfd& ifd;
+  int sample;                // The sample wanted.
+  std::span<std::byte> out;  // width * height samples of `bytes` each.
+  uint64_t bytes;            // Bytes per sample.
+  bool chunky;               // Each pixel holds all its samples (spp > 1, contiguous).
+  uint64_t pixel_bytes;      // Bytes of one decoded pixel: bytes * (chunky ? spp : 1).
+  uint16_t plane_sample;     // The separate plane holding `sample` (0 when chunky).
+  uint64_t file_size;
+};
+
+// One pread of the direct path: `bytes` file bytes at `file_offset` into the plane at `out_offset`.
+struct ReadRun {
+  uint64_t file_offset;
+  uint64_t out_offset;
+  uint64_t bytes;
+};
+
 }  // namespace
 
 struct TiffFile::Impl {
-  // Owned by libtiff once `tif` is open (TIFFClose closes it); closed by us otherwise.
+  // Owned by libtiff once `tif` is open (TIFFClose closes it); closed by us otherwise. Never
+  // changes after Open, so positioned reads on it need no lock.
   int fd = -1;
   TIFF* tif = nullptr;
   MessageSink sink;
-  int current_ifd = -1;  // The IFD libtiff has loaded; -1: unknown (after an error).
+  // The IFD libtiff has loaded and set up for decoding (SelectIfd); -1: none or unknown (after an
+  // error, and after Open, which leaves libtiff on the last IFD without codec set-up).
+  int current_ifd = -1;
+  // The largest strip or tile ReadPlane decodes into `scratch` (Limits::max_plane_bytes).
+  uint64_t max_block_bytes = 0;
   // Scratch for one decoded strip or tile when it cannot be decoded straight into the caller's
   // buffer; freed after a read when large, so an idle file holds little memory.
   std::vector<std::byte> scratch;
@@ -182,51 +196,68 @@ struct TiffFile::Impl {
       ::close(fd);
     }
   }
+
+  // Makes IFD `index` libtiff's current directory, set up for decoding the way ReadPlane expects.
+  // Every access to per-IFD libtiff state goes through here.
+  Status SelectIfd(const std::string& name, int index, const TiffIfd& ifd);
+  // The strip and tile readers of ReadPlane. ReadStrips may release `lock` (the direct path reads
+  // with pread only); `swap`: the file's byte order is not the machine's.
+  Status ReadStrips(const PlaneJob& job, std::unique_lock<std::mutex>& lock, bool swap);
+  Status ReadDirectStrips(const PlaneJob& job, uint64_t rows_per_strip, uint64_t strips,
+                          uint64_t first, std::unique_lock<std::mutex>& lock, bool swap);
+  Status DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip, uint64_t strips,
+                      uint64_t first);
+  Status ReadTiles(const PlaneJob& job);
 };
 
 namespace {
 
-// What messages about a strip or tile of one plane need.
-struct PlaneContext {
-  const std::string& name;
-  int index;
-  uint64_t file_size;
-};
-
-// One pread of the direct path: `bytes` file bytes at `file_offset` into the plane at `out_offset`.
-struct ReadRun {
-  uint64_t file_offset;
-  uint64_t out_offset;
-  uint64_t bytes;
-};
-
-// Swaps the byte order of every `bytes`-wide sample of `data` in place. Works on 64-bit words
-// (4, 2 or 1 samples at a time) so the compiler can vectorize it; a per-sample rotate in memory
-// runs at a fraction of memory speed.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-__attribute__((target_clones("avx2", "default")))  // Twice the width where the CPU has it.
-#endif
-void SwapSamples(std::span<std::byte> data, size_t bytes) {
-  if (bytes < 2) return;
-  std::byte* p = data.data();
-  const size_t words = data.size() / 8;
-  for (size_t i = 0; i < words; ++i) {
-    uint64_t v;
-    std::memcpy(&v, p + i * 8, 8);
-    if (bytes == 2) {
-      v = ((v & 0x00FF00FF00FF00FFull) << 8) | ((v >> 8) & 0x00FF00FF00FF00FFull);
-    } else if (bytes == 4) {
-      v = ((v & 0x0000FFFF0000FFFFull) << 16) | ((v >> 16) & 0x0000FFFF0000FFFFull);
-      v = ((v & 0x00FF00FF00FF00FFull) << 8) | ((v >> 8) & 0x00FF00FF00FF00FFull);
-    } else {
-      v = __builtin_bswap64(v);
-    }
-    std::memcpy(p + i * 8, &v, 8);
+// The bytes of one strip or tile of `ifd` as ReadPlane decodes it into scratch memory (chunky
+// pixels, tiles). nullopt: the page decodes straight into the caller's plane (one sample per
+// pixel, strips), or declares no usable tile size (ReadPlane reports that); `overflow`: the size
+// does not fit 64 bits.
+std::optional<uint64_t> ScratchBlockBytes(TIFF* tif, const TiffIfd& ifd, uint64_t sample_bytes,
+                                          bool* overflow) {
+  *overflow = false;
+  const bool chunky = ifd.planar_config != PLANARCONFIG_SEPARATE && ifd.samples_per_pixel > 1;
+  const uint64_t per_pixel = chunky ? ifd.samples_per_pixel : 1;
+  uint64_t block_width = ifd.width, block_height = 0;
+  if (ifd.tiled) {
+    uint32_t tile_width = 0, tile_height = 0;
+    TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tile_width);
+    TIFFGetField(tif, TIFFTAG_TILELENGTH, &tile_height);
+    if (tile_width == 0 || tile_height == 0) return std::nullopt;
+    block_width = tile_width;
+    block_height = tile_height;
+  } else {
+    if (!chunky) return std::nullopt;
+    uint32_t rows_per_strip = 0;
+    TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip);
+    block_height =
+        (rows_per_strip == 0 || rows_per_strip > ifd.height) ? ifd.height : rows_per_strip;
   }
-  // A tail shorter than a word (only when the plane size is not a multiple of 8 bytes).
-  for (size_t at = words * 8; at + bytes <= data.size(); at += bytes) {
-    std::reverse(p + at, p + at + bytes);
+  std::optional<uint64_t> bytes =
+      CheckedProduct({block_width, block_height, per_pixel, sample_bytes});
+  if (!bytes) *overflow = true;
+  return bytes;
+}
+
+// Refuses a page whose decoding would need a scratch block (one strip or tile, with all samples
+// of chunky pixels) larger than a plane may be: a 280-byte file must not make us allocate 51 GB.
+Status CheckBlockSize(TIFF* tif, const TiffIfd& ifd, const std::string& where,
+                      const TiffFile::Limits& limits) {
+  bool overflow = false;
+  const std::optional<uint64_t> block =
+      ScratchBlockBytes(tif, ifd, volume::BytesPerSample(*ifd.dtype), &overflow);
+  if (overflow || (block && *block > limits.max_plane_bytes)) {
+    return ResourceExhaustedError(where + " stores " + std::to_string(ifd.samples_per_pixel) +
+                                  "-sample pixels in " + (ifd.tiled ? "tiles" : "strips") + " of " +
+                                  (block ? std::to_string(*block) : std::string("more than 2^64")) +
+                                  " bytes, more than the limit of " +
+                                  std::to_string(limits.max_plane_bytes) +
+                                  " bytes for one decoded block");
   }
+  return Status::Ok();
 }
 
 }  // namespace
@@ -240,7 +271,7 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
   auto status = std::filesystem::status(path, ec);
   if (ec || !std::filesystem::exists(status)) return NotFoundError(name + ": no such file");
   if (!std::filesystem::is_regular_file(status)) {
-    return InvalidArgumentError(name + ": not a regular file");
+    return UnsupportedError(name + ": not a regular file");
   }
 
   std::unique_ptr<TiffFile> file(new TiffFile());
@@ -259,9 +290,7 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
 
   std::byte header[16] = {};
   const size_t header_size = static_cast<size_t>(std::min<uint64_t>(16, file->file_size_));
-  if (!PreadAll(impl.fd, 0, header, header_size)) {
-    return IoError(name + ": cannot read the header: " + std::strerror(errno));
-  }
+  OCTO_RETURN_IF_ERROR(ReadFully(impl.fd, 0, std::span<std::byte>(header, header_size), name));
   const bool little =
       header_size >= 4 && header[0] == std::byte{'I'} && header[1] == std::byte{'I'};
   const bool big = header_size >= 4 && header[0] == std::byte{'M'} && header[1] == std::byte{'M'};
@@ -321,8 +350,10 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
     if (!TIFFGetField(tif, TIFFTAG_PHOTOMETRIC, &ifd.photometric)) ifd.photometric = 1;
     TIFFGetFieldDefaulted(tif, TIFFTAG_SUBFILETYPE, &ifd.subfile_type);
     ifd.tiled = TIFFIsTiled(tif) != 0;
+    // Texts of IFD 0 only: writers repeat (up to megabytes of) metadata in every IFD, which must
+    // not be multiplied by the page count in the index. Description() reads any other page's.
     const char* text = nullptr;
-    if (TIFFGetField(tif, TIFFTAG_IMAGEDESCRIPTION, &text) && text != nullptr) {
+    if (index == 0 && TIFFGetField(tif, TIFFTAG_IMAGEDESCRIPTION, &text) && text != nullptr) {
       ifd.description = text;
     }
     if (index == 0 && TIFFGetField(tif, TIFFTAG_SOFTWARE, &text) && text != nullptr) {
@@ -368,19 +399,21 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
                             std::to_string(file->file_size_) + "-byte file can hold");
       }
     }
+    if (ifd.dtype) OCTO_RETURN_IF_ERROR(CheckBlockSize(tif, ifd, where, limits));
     file->ifds_.push_back(std::move(ifd));
 
     // Find the next IFD offset: after the entry count and the entries.
     const uint64_t at = file->ifds_.back().offset;
     std::byte count_bytes[8];
-    if (!PreadAll(impl.fd, at, count_bytes, count_size)) {
+    if (!ReadFully(impl.fd, at, std::span<std::byte>(count_bytes, count_size), name).ok()) {
       return CorruptError(where + " at offset " + std::to_string(at) + " is truncated");
     }
     const uint64_t entries = LoadN(count_bytes, count_size, big);
     const std::optional<uint64_t> next_at =
         CheckedAdd(at + count_size, CheckedMul(entries, entry_size).value_or(UINT64_MAX));
     std::byte next_bytes[8];
-    if (!next_at || !PreadAll(impl.fd, *next_at, next_bytes, pointer_size)) {
+    if (!next_at ||
+        !ReadFully(impl.fd, *next_at, std::span<std::byte>(next_bytes, pointer_size), name).ok()) {
       return CorruptError(where + ": the pointer to the next IFD lies beyond the end of the file");
     }
     const uint64_t next = LoadN(next_bytes, pointer_size, big);
@@ -405,7 +438,10 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
                            " at an unexpected offset");
     }
   }
-  impl.current_ifd = file->ifd_count() - 1;
+  // libtiff is left on the last IFD, but without the codec set-up of SelectIfd: make the first
+  // read of any IFD (the last one included) select it properly.
+  impl.current_ifd = -1;
+  impl.max_block_bytes = limits.max_plane_bytes;
   impl.sink.Clear();
   return file;
 }
@@ -414,22 +450,22 @@ namespace {
 
 // Checks that strile (strip or tile) `strile` lies inside the file. Sets `sparse` when the file
 // leaves it out on purpose (offset and byte count 0, GDAL's convention for an all-zero block).
-Status CheckStrile(TIFF* tif, const PlaneContext& c, const char* kind, uint32_t strile,
+Status CheckStrile(TIFF* tif, const PlaneJob& job, const char* kind, uint32_t strile,
                    uint64_t min_bytes, bool* sparse, uint64_t* offset_out = nullptr) {
   int err = 0;
   const uint64_t offset = TIFFGetStrileOffsetWithErr(tif, strile, &err);
   if (offset_out != nullptr) *offset_out = offset;
   const uint64_t bytes = err ? 0 : TIFFGetStrileByteCountWithErr(tif, strile, &err);
   const std::string where =
-      c.name + ": IFD " + std::to_string(c.index) + " " + kind + " " + std::to_string(strile);
+      job.name + ": IFD " + std::to_string(job.index) + " " + kind + " " + std::to_string(strile);
   if (err) return CorruptError(where + ": cannot read its offset or byte count");
   *sparse = offset == 0 && bytes == 0;
   if (*sparse) return Status::Ok();
   if (bytes == 0) return CorruptError(where + " is empty (byte count 0)");
-  if (offset > c.file_size || bytes > c.file_size - offset) {
+  if (offset > job.file_size || bytes > job.file_size - offset) {
     return CorruptError(where + " (bytes " + std::to_string(offset) + ".." +
                         std::to_string(offset + bytes) + ") extends beyond the end of the file (" +
-                        std::to_string(c.file_size) + " bytes): the file is truncated");
+                        std::to_string(job.file_size) + " bytes): the file is truncated");
   }
   if (bytes < min_bytes) {
     return CorruptError(where + " holds " + std::to_string(bytes) +
@@ -438,10 +474,10 @@ Status CheckStrile(TIFF* tif, const PlaneContext& c, const char* kind, uint32_t 
   return Status::Ok();
 }
 
-Status DecodeError(const PlaneContext& c, const char* kind, uint32_t strile, tmsize_t got,
+Status DecodeError(const PlaneJob& job, const char* kind, uint32_t strile, tmsize_t got,
                    uint64_t want, const MessageSink& sink) {
   std::string message =
-      c.name + ": IFD " + std::to_string(c.index) + " " + kind + " " + std::to_string(strile);
+      job.name + ": IFD " + std::to_string(job.index) + " " + kind + " " + std::to_string(strile);
   if (got < 0) {
     message += ": decoding failed";
   } else if (static_cast<uint64_t>(got) == want) {
@@ -453,7 +489,214 @@ Status DecodeError(const PlaneContext& c, const char* kind, uint32_t strile, tms
   return CorruptError(Join(message, sink.Describe()));
 }
 
+// Zeroes columns [x0, x0 + cols) of rows [y0, y0 + rows) of the plane (a sparse strip or tile).
+void ZeroRect(const PlaneJob& job, uint64_t x0, uint64_t y0, uint64_t cols, uint64_t rows) {
+  const uint64_t width = job.ifd.width;
+  if (x0 == 0 && cols == width) {  // Whole rows: one contiguous run.
+    std::memset(job.out.data() + y0 * width * job.bytes, 0, rows * width * job.bytes);
+    return;
+  }
+  for (uint64_t y = 0; y < rows; ++y) {
+    std::memset(job.out.data() + ((y0 + y) * width + x0) * job.bytes, 0, cols * job.bytes);
+  }
+}
+
 }  // namespace
+
+Status TiffFile::Impl::SelectIfd(const std::string& name, int index, const TiffIfd& ifd) {
+  if (current_ifd == index) return Status::Ok();
+  current_ifd = -1;
+  if (!TIFFSetSubDirectory(tif, ifd.offset)) {
+    return CorruptError(
+        Join(name + ": cannot reload IFD " + std::to_string(index), sink.Describe()));
+  }
+  if (ifd.compression == COMPRESSION_JPEG && ifd.photometric == PHOTOMETRIC_YCBCR) {
+    // Let libjpeg convert to RGB instead of handing out subsampled YCbCr. A pseudo-tag of the
+    // codec: libtiff resets it whenever it loads the directory, so it is set on every selection.
+    TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
+  }
+  current_ifd = index;
+  return Status::Ok();
+}
+
+Status TiffFile::Impl::ReadStrips(const PlaneJob& job, std::unique_lock<std::mutex>& lock,
+                                  bool swap) {
+  const TiffIfd& ifd = job.ifd;
+  // Strip arithmetic in 64 bits: heights reach 2^32 - 1 and RowsPerStrip 2^32 - 1 means "one
+  // strip"; in 32 bits the strip count of such a plane wraps to 0.
+  uint32_t rows_per_strip_tag = 0;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip_tag);
+  const uint64_t height = ifd.height;
+  const uint64_t rows_per_strip =
+      (rows_per_strip_tag == 0 || rows_per_strip_tag > height) ? height : rows_per_strip_tag;
+  const uint64_t strips_per_plane = (height + rows_per_strip - 1) / rows_per_strip;
+  const uint64_t sample_planes =
+      ifd.planar_config == PLANARCONFIG_SEPARATE ? ifd.samples_per_pixel : 1;
+  const uint64_t strips = TIFFNumberOfStrips(tif);
+  // Both factors are < 2^32 and < 2^16: no overflow.
+  if (strips_per_plane * sample_planes != strips) {
+    return CorruptError(job.name + ": IFD " + std::to_string(job.index) + " has " +
+                        std::to_string(strips) + " strips, but " + std::to_string(height) +
+                        " rows in strips of " + std::to_string(rows_per_strip) + " rows (x " +
+                        std::to_string(sample_planes) + " sample planes) make " +
+                        std::to_string(strips_per_plane * sample_planes));
+  }
+  const uint64_t first = job.plane_sample * strips_per_plane;
+  uint16_t fill_order = FILLORDER_MSB2LSB;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_FILLORDER, &fill_order);
+  if (ifd.compression == COMPRESSION_NONE && !job.chunky && fill_order == FILLORDER_MSB2LSB) {
+    return ReadDirectStrips(job, rows_per_strip, strips_per_plane, first, lock, swap);
+  }
+  return DecodeStrips(job, rows_per_strip, strips_per_plane, first);
+}
+
+// Direct path: pread the strips straight into `out`, merging strips that follow each other in the
+// file into one read, then swap bytes if needed. Only the strip table needs libtiff, so the lock
+// is released before the (possibly long) reads.
+Status TiffFile::Impl::ReadDirectStrips(const PlaneJob& job, uint64_t rows_per_strip,
+                                        uint64_t strips, uint64_t first,
+                                        std::unique_lock<std::mutex>& lock, bool swap) {
+  const uint64_t height = job.ifd.height;
+  const uint64_t row_bytes = uint64_t{job.ifd.width} * job.pixel_bytes;
+  std::vector<ReadRun> runs;
+  for (uint64_t s = 0; s < strips; ++s) {
+    const uint32_t strip = static_cast<uint32_t>(first + s);  // < TIFFNumberOfStrips.
+    const uint64_t y0 = s * rows_per_strip;
+    const uint64_t want = std::min(rows_per_strip, height - y0) * row_bytes;
+    const uint64_t at = y0 * row_bytes;
+    bool sparse = false;
+    uint64_t offset = 0;
+    OCTO_RETURN_IF_ERROR(CheckStrile(tif, job, "strip", strip, want, &sparse, &offset));
+    if (sparse) {
+      std::memset(job.out.data() + at, 0, want);
+    } else if (!runs.empty() && runs.back().file_offset + runs.back().bytes == offset &&
+               runs.back().out_offset + runs.back().bytes == at) {
+      runs.back().bytes += want;
+    } else {
+      runs.push_back({offset, at, want});
+    }
+  }
+  lock.unlock();
+  // When swapping, read 1 MiB at a time and swap it while it is still in cache.
+  const uint64_t chunk = swap ? uint64_t{1} << 20 : UINT64_MAX;
+  for (const ReadRun& run : runs) {
+    for (uint64_t done = 0; done < run.bytes; done += std::min(chunk, run.bytes - done)) {
+      std::span<std::byte> piece =
+          job.out.subspan(run.out_offset + done, std::min(chunk, run.bytes - done));
+      // CheckStrile put every run inside the file; a read past its end means it shrank since.
+      OCTO_RETURN_IF_ERROR(ReadFully(fd, run.file_offset + done, piece, job.name));
+      if (swap) SwapBytesInPlace(piece, job.bytes);
+    }
+  }
+  return Status::Ok();
+}
+
+// Decoded path: libtiff decodes each strip (decompressing, undoing predictors and byte order).
+// One sample per pixel decodes straight into the caller's buffer; chunky pixels go through
+// scratch, from which the wanted sample is picked.
+Status TiffFile::Impl::DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip, uint64_t strips,
+                                    uint64_t first) {
+  const uint64_t width = job.ifd.width;
+  const uint64_t height = job.ifd.height;
+  const uint64_t row_bytes = width * job.pixel_bytes;
+  const bool uncompressed = job.ifd.compression == COMPRESSION_NONE;
+  if (job.chunky) {
+    const uint64_t block = rows_per_strip * row_bytes;  // <= max_block_bytes, checked at Open.
+    if (block > max_block_bytes) {
+      return ResourceExhaustedError(
+          job.name + ": IFD " + std::to_string(job.index) + " strips of " + std::to_string(block) +
+          " bytes exceed the limit of " + std::to_string(max_block_bytes));
+    }
+    scratch.resize(block);
+  }
+  for (uint64_t s = 0; s < strips; ++s) {
+    const uint32_t strip = static_cast<uint32_t>(first + s);  // < TIFFNumberOfStrips.
+    const uint64_t y0 = s * rows_per_strip;
+    const uint64_t rows = std::min(rows_per_strip, height - y0);
+    const uint64_t want = rows * row_bytes;
+    std::byte* dst = job.out.data() + y0 * width * job.bytes;
+    bool sparse = false;
+    OCTO_RETURN_IF_ERROR(CheckStrile(tif, job, "strip", strip, uncompressed ? want : 0, &sparse));
+    if (sparse) {
+      ZeroRect(job, 0, y0, width, rows);
+      continue;
+    }
+    // For uncompressed data libtiff read()s the strip straight into `target`, with no copy.
+    std::byte* target = job.chunky ? scratch.data() : dst;
+    const tmsize_t got = TIFFReadEncodedStrip(tif, strip, target, static_cast<tmsize_t>(want));
+    if (got != static_cast<tmsize_t>(want) || !sink.errors.empty()) {
+      return DecodeError(job, "strip", strip, got, want, sink);
+    }
+    if (job.chunky) {
+      ExtractSample(target, job.ifd.samples_per_pixel, job.sample, job.bytes, rows * width, dst);
+    }
+  }
+  return Status::Ok();
+}
+
+Status TiffFile::Impl::ReadTiles(const PlaneJob& job) {
+  const TiffIfd& ifd = job.ifd;
+  uint32_t tile_width = 0, tile_height = 0;
+  TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tile_width);
+  TIFFGetField(tif, TIFFTAG_TILELENGTH, &tile_height);
+  const std::string where = job.name + ": IFD " + std::to_string(job.index);
+  const std::string tiles = std::to_string(tile_width) + "x" + std::to_string(tile_height);
+  if (tile_width == 0 || tile_height == 0) {
+    return CorruptError(where + " declares " + tiles + " tiles");
+  }
+  // A tile may be wider or taller than the image (one 1024x1024 tile for a 1000x10 image is
+  // legitimate), so its size is bounded only by the scratch limit, as checked at Open.
+  const std::optional<uint64_t> tile_bytes =
+      CheckedProduct({tile_width, tile_height, job.pixel_bytes});
+  if (!tile_bytes || *tile_bytes > max_block_bytes) {
+    return ResourceExhaustedError(where + " declares " + tiles + " tiles of " +
+                                  (tile_bytes ? std::to_string(*tile_bytes) : "> 2^64") +
+                                  " bytes, more than the limit of " +
+                                  std::to_string(max_block_bytes));
+  }
+  if (static_cast<uint64_t>(TIFFTileSize64(tif)) != *tile_bytes) {
+    return UnsupportedError(where + ": tile layout not understood (libtiff tile size " +
+                            std::to_string(TIFFTileSize64(tif)) + " bytes, expected " +
+                            std::to_string(*tile_bytes) + ")");
+  }
+  scratch.resize(*tile_bytes);
+  const bool uncompressed = ifd.compression == COMPRESSION_NONE;
+  const uint64_t width = ifd.width;
+  const uint64_t height = ifd.height;
+  const uint64_t tile_row_bytes = uint64_t{tile_width} * job.pixel_bytes;
+  // 64-bit loop counters: with 32 bits, ty += tile_height wraps past 2^32 and never ends.
+  for (uint64_t ty = 0; ty < height; ty += tile_height) {
+    for (uint64_t tx = 0; tx < width; tx += tile_width) {
+      const uint32_t tile = TIFFComputeTile(tif, static_cast<uint32_t>(tx),
+                                            static_cast<uint32_t>(ty), 0, job.plane_sample);
+      const uint64_t rows = std::min<uint64_t>(tile_height, height - ty);
+      const uint64_t cols = std::min<uint64_t>(tile_width, width - tx);
+      bool sparse = false;
+      OCTO_RETURN_IF_ERROR(
+          CheckStrile(tif, job, "tile", tile, uncompressed ? *tile_bytes : 0, &sparse));
+      if (sparse) {
+        ZeroRect(job, tx, ty, cols, rows);
+        continue;
+      }
+      const tmsize_t got =
+          TIFFReadEncodedTile(tif, tile, scratch.data(), static_cast<tmsize_t>(*tile_bytes));
+      if (got != static_cast<tmsize_t>(*tile_bytes) || !sink.errors.empty()) {
+        return DecodeError(job, "tile", tile, got, *tile_bytes, sink);
+      }
+      // Crop the tile at the right and bottom edges of the image.
+      for (uint64_t y = 0; y < rows; ++y) {
+        const std::byte* src = scratch.data() + y * tile_row_bytes;
+        std::byte* dst = job.out.data() + ((ty + y) * width + tx) * job.bytes;
+        if (job.chunky) {
+          ExtractSample(src, ifd.samples_per_pixel, job.sample, job.bytes, cols, dst);
+        } else {
+          std::memcpy(dst, src, cols * job.bytes);
+        }
+      }
+    }
+  }
+  return Status::Ok();
+}
 
 Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
   const std::string name = path_.string();
@@ -483,184 +726,67 @@ Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
 
   std::unique_lock<std::mutex> lock(mutex_);
   Impl& impl = *impl_;
-  TIFF* tif = impl.tif;
   impl.sink.Clear();
-  const PlaneContext c{name, index, file_size_};
-  if (impl.current_ifd != index) {
-    impl.current_ifd = -1;
-    if (!TIFFSetSubDirectory(tif, ifd.offset)) {
-      return CorruptError(
-          Join(name + ": cannot reload IFD " + std::to_string(index), impl.sink.Describe()));
-    }
-    if (ifd.compression == COMPRESSION_JPEG && ifd.photometric == PHOTOMETRIC_YCBCR) {
-      // Let libjpeg convert to RGB instead of handing out subsampled YCbCr.
-      TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
-    }
-    impl.current_ifd = index;
-  }
-  uint32_t depth = 1;
-  TIFFGetFieldDefaulted(tif, TIFFTAG_IMAGEDEPTH, &depth);
-  if (depth > 1) {
-    return UnsupportedError(name + ": IFD " + std::to_string(index) + " is a 3-D (ImageDepth " +
-                            std::to_string(depth) + ") image");
-  }
-
-  const bool chunky = ifd.planar_config != PLANARCONFIG_SEPARATE && ifd.samples_per_pixel > 1;
-  const int spp = ifd.samples_per_pixel;
-  const uint64_t per_pixel = chunky ? static_cast<uint64_t>(spp) : 1;
-  const uint64_t pixel_bytes = per_pixel * bytes;
-  const uint16_t plane_sample = chunky ? 0 : static_cast<uint16_t>(sample);
-  const bool uncompressed = ifd.compression == COMPRESSION_NONE;
-  Status result = Status::Ok();
-
-  if (!ifd.tiled) {
-    uint32_t rows_per_strip = 0;
-    TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip);
-    if (rows_per_strip == 0 || rows_per_strip > ifd.height) rows_per_strip = ifd.height;
-    const uint32_t strips_per_plane = (ifd.height + rows_per_strip - 1) / rows_per_strip;
-    const uint32_t first = plane_sample * strips_per_plane;
-    const uint64_t strips = TIFFNumberOfStrips(tif);
-    if (uint64_t{first} + strips_per_plane > strips) {
-      return CorruptError(name + ": IFD " + std::to_string(index) + " has " +
-                          std::to_string(strips) + " strips, " +
-                          std::to_string(uint64_t{first} + strips_per_plane) + " needed");
-    }
-    const uint64_t row_bytes = uint64_t{ifd.width} * pixel_bytes;
-    uint16_t fill_order = FILLORDER_MSB2LSB;
-    TIFFGetFieldDefaulted(tif, TIFFTAG_FILLORDER, &fill_order);
-    if (uncompressed && !chunky && fill_order == FILLORDER_MSB2LSB) {
-      // Direct path: pread the strips straight into `out`, merging strips that follow each other
-      // in the file into one read, then swap bytes if needed. Only the strip table needs libtiff,
-      // so the lock is released before the (possibly long) reads.
-      std::vector<ReadRun> runs;
-      for (uint32_t s = 0; s < strips_per_plane; ++s) {
-        const uint32_t strip = first + s;
-        const uint32_t y0 = s * rows_per_strip;
-        const uint64_t want = std::min(rows_per_strip, ifd.height - y0) * row_bytes;
-        const uint64_t at = uint64_t{y0} * row_bytes;
-        bool sparse = false;
-        uint64_t offset = 0;
-        Status st = CheckStrile(tif, c, "strip", strip, want, &sparse, &offset);
-        if (!st.ok()) {
-          impl.current_ifd = -1;
-          return st;
-        }
-        if (sparse) {
-          std::memset(out.data() + at, 0, want);
-        } else if (!runs.empty() && runs.back().file_offset + runs.back().bytes == offset &&
-                   runs.back().out_offset + runs.back().bytes == at) {
-          runs.back().bytes += want;
-        } else {
-          runs.push_back({offset, at, want});
-        }
-      }
-      lock.unlock();
-      const bool swap = bytes > 1 && big_endian_ != (std::endian::native == std::endian::big);
-      // When swapping, read 1 MiB at a time and swap it while it is still in cache.
-      const uint64_t chunk = swap ? uint64_t{1} << 20 : UINT64_MAX;
-      for (const ReadRun& run : runs) {
-        for (uint64_t done = 0; done < run.bytes; done += chunk) {
-          std::span<std::byte> piece =
-              out.subspan(run.out_offset + done, std::min(chunk, run.bytes - done));
-          OCTO_RETURN_IF_ERROR(ReadBytes(run.file_offset + done, piece));
-          if (swap) SwapSamples(piece, bytes);
-        }
-      }
-      return Status::Ok();
-    }
-    for (uint32_t s = 0; s < strips_per_plane && result.ok(); ++s) {
-      const uint32_t strip = first + s;
-      const uint32_t y0 = s * rows_per_strip;
-      const uint32_t rows = std::min(rows_per_strip, ifd.height - y0);
-      const uint64_t want = rows * row_bytes;
-      std::byte* dst = out.data() + uint64_t{y0} * ifd.width * bytes;
-      bool sparse = false;
-      result = CheckStrile(tif, c, "strip", strip, uncompressed ? want : 0, &sparse);
-      if (!result.ok()) break;
-      if (sparse) {
-        std::memset(dst, 0, uint64_t{rows} * ifd.width * bytes);
-        continue;
-      }
-      // One sample per pixel: decode straight into the caller's buffer (for uncompressed data
-      // libtiff then read()s the strip there, with no copy at all).
-      std::byte* target = dst;
-      if (chunky) {
-        impl.scratch.resize(want);
-        target = impl.scratch.data();
-      }
-      const tmsize_t got = TIFFReadEncodedStrip(tif, strip, target, static_cast<tmsize_t>(want));
-      if (got != static_cast<tmsize_t>(want) || !impl.sink.errors.empty()) {
-        result = DecodeError(c, "strip", strip, got, want, impl.sink);
-        break;
-      }
-      if (chunky) {
-        ExtractSample(target, spp, sample, bytes, uint64_t{rows} * ifd.width, dst);
-      }
-    }
-  } else {
-    uint32_t tile_width = 0, tile_height = 0;
-    TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tile_width);
-    TIFFGetField(tif, TIFFTAG_TILELENGTH, &tile_height);
-    const std::string where = name + ": IFD " + std::to_string(index);
-    if (tile_width == 0 || tile_height == 0) {
-      return CorruptError(where + " declares " + std::to_string(tile_width) + "x" +
-                          std::to_string(tile_height) + " tiles");
-    }
-    const std::optional<uint64_t> tile_bytes =
-        CheckedProduct({tile_width, tile_height, pixel_bytes});
-    const uint64_t max_tile = CheckedMul(plane_bytes, per_pixel).value_or(UINT64_MAX);
-    // A tile may exceed the plane (edge padding) but not absurdly: cap it at 4 planes + 1 MiB.
-    if (!tile_bytes || *tile_bytes > CheckedMul(max_tile, 4).value_or(UINT64_MAX) + (1u << 20)) {
-      return CorruptError(where + " declares " + std::to_string(tile_width) + "x" +
-                          std::to_string(tile_height) + " tiles, far larger than its image");
-    }
-    if (static_cast<uint64_t>(TIFFTileSize64(tif)) != *tile_bytes) {
-      return UnsupportedError(where + ": tile layout not understood (libtiff tile size " +
-                              std::to_string(TIFFTileSize64(tif)) + " bytes, expected " +
-                              std::to_string(*tile_bytes) + ")");
-    }
-    impl.scratch.resize(*tile_bytes);
-    const uint64_t tile_row_bytes = uint64_t{tile_width} * pixel_bytes;
-    for (uint32_t ty = 0; ty < ifd.height && result.ok(); ty += tile_height) {
-      for (uint32_t tx = 0; tx < ifd.width && result.ok(); tx += tile_width) {
-        const uint32_t tile = TIFFComputeTile(tif, tx, ty, 0, plane_sample);
-        const uint32_t rows = std::min(tile_height, ifd.height - ty);
-        const uint32_t cols = std::min(tile_width, ifd.width - tx);
-        bool sparse = false;
-        result = CheckStrile(tif, c, "tile", tile, uncompressed ? *tile_bytes : 0, &sparse);
-        if (!result.ok()) break;
-        if (sparse) {
-          for (uint32_t y = 0; y < rows; ++y) {
-            std::memset(out.data() + ((uint64_t{ty} + y) * ifd.width + tx) * bytes, 0,
-                        uint64_t{cols} * bytes);
-          }
-          continue;
-        }
-        const tmsize_t got =
-            TIFFReadEncodedTile(tif, tile, impl.scratch.data(), static_cast<tmsize_t>(*tile_bytes));
-        if (got != static_cast<tmsize_t>(*tile_bytes) || !impl.sink.errors.empty()) {
-          result = DecodeError(c, "tile", tile, got, *tile_bytes, impl.sink);
-          break;
-        }
-        // Crop the tile at the right and bottom edges of the image.
-        for (uint32_t y = 0; y < rows; ++y) {
-          const std::byte* src = impl.scratch.data() + y * tile_row_bytes;
-          std::byte* dst = out.data() + ((uint64_t{ty} + y) * ifd.width + tx) * bytes;
-          if (chunky) {
-            ExtractSample(src, spp, sample, bytes, cols, dst);
-          } else {
-            std::memcpy(dst, src, uint64_t{cols} * bytes);
-          }
-        }
-      }
+  Status result = impl.SelectIfd(name, index, ifd);
+  if (result.ok()) {
+    uint32_t depth = 1;
+    TIFFGetFieldDefaulted(impl.tif, TIFFTAG_IMAGEDEPTH, &depth);
+    if (depth > 1) {
+      result = UnsupportedError(name + ": IFD " + std::to_string(index) + " is a 3-D (ImageDepth " +
+                                std::to_string(depth) + ") image");
     }
   }
-  if (impl.scratch.size() > (size_t{64} << 20)) {
-    impl.scratch = std::vector<std::byte>();  // Do not keep a huge scratch buffer around.
+  if (result.ok()) {
+    const bool chunky = ifd.planar_config != PLANARCONFIG_SEPARATE && ifd.samples_per_pixel > 1;
+    const PlaneJob job{name,
+                       index,
+                       ifd,
+                       sample,
+                       out,
+                       bytes,
+                       chunky,
+                       bytes * (chunky ? ifd.samples_per_pixel : 1),
+                       static_cast<uint16_t>(chunky ? 0 : sample),
+                       file_size_};
+    const bool swap = bytes > 1 && big_endian_ != (std::endian::native == std::endian::big);
+    result = ifd.tiled ? impl.ReadTiles(job) : impl.ReadStrips(job, lock, swap);
   }
-  // After a failure libtiff's per-directory state may be off; reload the IFD next time.
-  if (!result.ok()) impl.current_ifd = -1;
+  // The direct strip path releases the lock for its reads; then libtiff's state was not touched.
+  if (lock.owns_lock()) {
+    if (impl.scratch.size() > (size_t{64} << 20)) {
+      impl.scratch = std::vector<std::byte>();  // Do not keep a huge scratch buffer around.
+    }
+    // After a failure libtiff's per-directory state may be off; reload the IFD next time.
+    if (!result.ok()) impl.current_ifd = -1;
+  }
   return result;
+}
+
+Result<std::string> TiffFile::Description(int index, size_t max_bytes) {
+  const std::string name = path_.string();
+  if (index < 0 || index >= ifd_count()) {
+    return OutOfRangeError(name + ": IFD " + std::to_string(index) + " requested, the file has " +
+                           std::to_string(ifd_count()));
+  }
+  std::string_view text;
+  std::lock_guard<std::mutex> lock(mutex_);
+  Impl& impl = *impl_;
+  if (index == 0) {
+    text = ifds_[0].description;  // Kept in the index.
+  } else {
+    impl.sink.Clear();
+    OCTO_RETURN_IF_ERROR(impl.SelectIfd(name, index, ifds_[index]));
+    const char* raw = nullptr;
+    if (TIFFGetField(impl.tif, TIFFTAG_IMAGEDESCRIPTION, &raw) && raw != nullptr) {
+      text = std::string_view(raw, ::strnlen(raw, max_bytes + 1));
+    }
+  }
+  if (text.size() > max_bytes) {
+    return ResourceExhaustedError(name + ": IFD " + std::to_string(index) +
+                                  " has an ImageDescription longer than the limit of " +
+                                  std::to_string(max_bytes) + " bytes");
+  }
+  return std::string(text);
 }
 
 Result<uint64_t> TiffFile::ContiguousDataOffset(int index) {
@@ -681,14 +807,7 @@ Result<uint64_t> TiffFile::ContiguousDataOffset(int index) {
   std::lock_guard<std::mutex> lock(mutex_);
   Impl& impl = *impl_;
   impl.sink.Clear();
-  if (impl.current_ifd != index) {
-    impl.current_ifd = -1;
-    if (!TIFFSetSubDirectory(impl.tif, ifd.offset)) {
-      return CorruptError(
-          Join(name + ": cannot reload IFD " + std::to_string(index), impl.sink.Describe()));
-    }
-    impl.current_ifd = index;
-  }
+  OCTO_RETURN_IF_ERROR(impl.SelectIfd(name, index, ifd));
   const uint32_t strips = TIFFNumberOfStrips(impl.tif);
   uint64_t first = 0, end = 0;
   for (uint32_t s = 0; s < strips && end - first < want; ++s) {
@@ -722,20 +841,14 @@ Status TiffFile::ReadBytes(uint64_t offset, std::span<std::byte> out) const {
                         std::to_string(offset + out.size()) + " lie beyond the end of the file (" +
                         std::to_string(file_size_) + " bytes): the file is truncated");
   }
-  errno = 0;
-  if (!PreadAll(impl_->fd, offset, out.data(), out.size())) {
-    return IoError(name + ": read of " + std::to_string(out.size()) + " bytes at offset " +
-                   std::to_string(offset) + " failed" +
-                   (errno != 0 ? std::string(": ") + std::strerror(errno) : std::string()));
-  }
-  return Status::Ok();
+  return ReadFully(impl_->fd, offset, out, name);
 }
 
 bool HasTiffSignature(const std::filesystem::path& path) {
   int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return false;
   std::byte head[4] = {};
-  const bool read = PreadAll(fd, 0, head, sizeof(head));
+  const bool read = ReadFully(fd, 0, head, path.string()).ok();
   ::close(fd);
   if (!read) return false;
   const std::string_view s(reinterpret_cast<const char*>(head), 4);

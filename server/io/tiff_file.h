@@ -5,7 +5,9 @@
 //
 // Decoding supports strips and tiles, every compression this libtiff decodes, chunky and planar
 // samples, and the sample types of volume::DataType. Sizes declared by the file are checked
-// against Limits and the file size before anything is allocated; IFD loops are refused.
+// against Limits and the file size before anything is allocated (a plane of one sample, and one
+// decoded strip or tile, which chunky pixels decode with all their samples, must each fit
+// Limits::max_plane_bytes); IFD loops are refused.
 //
 // Thread safety: thread-safe. Decoding calls are serialized by an internal mutex (a libtiff
 // handle is not reentrant); the index is immutable after Open.
@@ -33,13 +35,16 @@ struct TiffIfd {
   uint32_t height = 0;
   uint16_t samples_per_pixel = 1;
   uint16_t bits_per_sample = 8;
-  uint16_t sample_format = 1;    // SAMPLEFORMAT_UINT etc.
-  uint16_t planar_config = 1;    // 1 chunky (contiguous), 2 planar (separate).
-  uint16_t compression = 1;      // COMPRESSION_*.
+  uint16_t sample_format = 1;  // SAMPLEFORMAT_UINT etc.
+  uint16_t planar_config = 1;  // 1 chunky (contiguous), 2 planar (separate).
+  uint16_t compression = 1;    // COMPRESSION_*.
   uint16_t photometric = 1;
   bool tiled = false;
   std::optional<volume::DataType> dtype;  // nullopt: a sample layout we cannot decode.
-  std::string description;                // ImageDescription; "" when absent.
+  // ImageDescription of IFD 0 only ("" elsewhere and when absent): writers repeat up to megabytes
+  // of metadata in every IFD, which must not be multiplied by the page count in the index. Use
+  // TiffFile::Description() for another page's.
+  std::string description;
   // XResolution / YResolution (pixels per unit) and ResolutionUnit (1 none, 2 inch, 3 cm).
   std::optional<double> x_resolution;
   std::optional<double> y_resolution;
@@ -54,12 +59,15 @@ struct TiffIfd {
 class TiffFile {
  public:
   struct Limits {
-    uint64_t max_plane_bytes = uint64_t{4} << 30;  // One decoded plane of one sample.
+    // One decoded plane of one sample; also one decoded strip or tile (all samples of chunky
+    // pixels), which ReadPlane holds in scratch memory.
+    uint64_t max_plane_bytes = uint64_t{4} << 30;
     uint32_t max_ifds = 1u << 20;
   };
 
-  // Opens `path` and indexes every IFD. Errors: not a TIFF, truncated, IFD loop, more IFDs
-  // than Limits allow, a plane larger than Limits allow.
+  // Opens `path` and indexes every IFD. Errors: not a TIFF, not a regular file (Unsupported),
+  // truncated, IFD loop, more IFDs than Limits allow, a plane or a strip/tile larger than Limits
+  // allow.
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path,
                                                 const Limits& limits);
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path) {
@@ -81,6 +89,10 @@ class TiffFile {
   // IFD's dtype and native byte order.
   // REQUIRES: out.size() == width * height * BytesPerSample(*dtype).
   Status ReadPlane(int index, int sample, std::span<std::byte> out);
+
+  // The ImageDescription of IFD `index` ("" when absent), read on demand. ResourceExhausted when
+  // it is longer than `max_bytes`.
+  Result<std::string> Description(int index, size_t max_bytes = size_t{1} << 20);
 
   // The file offset of IFD `index`'s pixel data when it is uncompressed, in strips, and stored
   // as one contiguous run of width*height*samples*bytes bytes in strip order (as ImageJ writes

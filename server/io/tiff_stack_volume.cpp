@@ -8,11 +8,16 @@
 #include <utility>
 #include <vector>
 
+#include "io/spacing.h"
+#include "util/byte_swap.h"
 #include "util/checked_math.h"
 #include "util/strings.h"
 
 namespace octoscope::io {
 namespace {
+
+// Channels an ImageJ description may declare (hyperspectral stacks have hundreds).
+constexpr int64_t kMaxImageJChannels = 65536;
 
 // Where the pages of a file sit along channel, z and time:
 //   page = c + C * ((t % F) + F * z + P * (t / F))
@@ -31,39 +36,6 @@ struct PageLayout {
                                 pages_per_volume * (t / frames_per_slice));
   }
 };
-
-void ByteSwap(std::span<std::byte> data, size_t bytes) {
-  std::byte* p = data.data();
-  const size_t n = data.size() / bytes;
-  switch (bytes) {
-    case 2:
-      for (size_t i = 0; i < n; ++i, p += 2) {
-        uint16_t v;
-        std::memcpy(&v, p, 2);
-        v = __builtin_bswap16(v);
-        std::memcpy(p, &v, 2);
-      }
-      break;
-    case 4:
-      for (size_t i = 0; i < n; ++i, p += 4) {
-        uint32_t v;
-        std::memcpy(&v, p, 4);
-        v = __builtin_bswap32(v);
-        std::memcpy(p, &v, 4);
-      }
-      break;
-    case 8:
-      for (size_t i = 0; i < n; ++i, p += 8) {
-        uint64_t v;
-        std::memcpy(&v, p, 8);
-        v = __builtin_bswap64(v);
-        std::memcpy(p, &v, 8);
-      }
-      break;
-    default:
-      break;
-  }
-}
 
 // A TIFF stack of the selected time point. Planes are either IFDs decoded by TiffFile, or (ImageJ
 // > 4 GB) raw images at data_offset + image * plane_bytes.
@@ -95,7 +67,7 @@ class TiffStackSource : public VolumeSource {
         // Checked at open: every image lies inside the file.
         OCTO_RETURN_IF_ERROR(
             file_->ReadBytes(*data_offset_ + static_cast<uint64_t>(id) * plane_bytes, plane));
-        if (swap && bytes > 1) ByteSwap(plane, bytes);
+        if (swap) SwapBytesInPlace(plane, bytes);
       } else {
         OCTO_RETURN_IF_ERROR(
             file_->ReadPlane(static_cast<int>(id), samples_are_channels_ ? channel : 0, plane));
@@ -134,17 +106,6 @@ Status CheckSamePage(const TiffFile& file, int first, int index) {
   return UnsupportedError(file.path().string() + ": pages differ: IFD " + std::to_string(index) +
                           " is " + describe(b) + ", IFD " + std::to_string(first) + " is " +
                           describe(a) + "; a stack needs equal pages");
-}
-
-std::optional<double> PositiveOrNone(std::optional<double> v) {
-  if (v && std::isfinite(*v) && *v > 0) return v;
-  return std::nullopt;
-}
-
-// x/y pitch from a resolution tag: only centimetres are trusted (inch is mostly a 72 dpi default).
-std::optional<double> SpacingFromResolution(std::optional<double> resolution, uint16_t unit) {
-  if (!resolution || unit != 3) return std::nullopt;
-  return PositiveOrNone(1e4 / *resolution);
 }
 
 Status CheckTime(const std::string& name, int time, int64_t time_points) {
@@ -205,13 +166,15 @@ struct ScanImageLayout {
 };
 
 // The page layout ScanImage metadata describes; nullopt when the text is not ScanImage's or does
-// not fit the file (then the file opens as a plain stack).
+// not fit the file (then the file opens as a plain stack). Every count is bounded by `pages`
+// before it is multiplied: a product that overflows or needs more pages than the file has means
+// the metadata does not describe this file.
 std::optional<ScanImageLayout> ScanImageLayoutOf(std::string_view metadata, int64_t pages) {
   const auto keys = ParseScanImageKeys(metadata);
   auto save = keys.find("SI.hChannels.channelSave");
   if (save == keys.end()) return std::nullopt;
   const int64_t channels = static_cast<int64_t>(ParseMatlabNumbers(save->second).size());
-  if (channels < 1) return std::nullopt;
+  if (channels < 1 || channels > pages) return std::nullopt;
 
   const bool fast_z = ScanImageTrue(keys, "SI.hFastZ.enable");
   const bool stack = fast_z || ScanImageTrue(keys, "SI.hStackManager.enable");
@@ -231,7 +194,9 @@ std::optional<ScanImageLayout> ScanImageLayoutOf(std::string_view metadata, int6
       frames /= static_cast<int64_t>(*avg);
     }
   }
+  // Both factors are < 1e9, so the product fits; more pages per volume than the file has is no fit.
   int64_t per_volume = frames * slices;
+  if (per_volume > pages) return std::nullopt;
   if (fast_z && !ScanImageTrue(keys, "SI.hFastZ.discardFlybackFrames")) {
     // Fly-back frames are stored after the slices of each volume.
     std::optional<double> with_flyback =
@@ -240,8 +205,13 @@ std::optional<ScanImageLayout> ScanImageLayoutOf(std::string_view metadata, int6
       per_volume = static_cast<int64_t>(*with_flyback);
     }
   }
-  const int64_t volumes = pages / (channels * per_volume);
-  if (volumes < 1) return std::nullopt;
+  const std::optional<uint64_t> pages_per_volume =
+      CheckedProduct({static_cast<uint64_t>(channels), static_cast<uint64_t>(per_volume)});
+  if (!pages_per_volume || *pages_per_volume == 0 ||
+      *pages_per_volume > static_cast<uint64_t>(pages)) {
+    return std::nullopt;
+  }
+  const int64_t volumes = pages / static_cast<int64_t>(*pages_per_volume);  // >= 1.
 
   ScanImageLayout result;
   result.layout.page_channels = channels;
@@ -255,12 +225,6 @@ std::optional<ScanImageLayout> ScanImageLayoutOf(std::string_view metadata, int6
     if (step) result.z_step_um = PositiveOrNone(std::fabs(*step));
   }
   return result;
-}
-
-void ApplySpacingOverrides(volume::VolumeInfo& info, const OpenOptions& options) {
-  for (int a = 0; a < 3; ++a) {
-    if (options.spacing_um[a]) info.spacing_um[a] = options.spacing_um[a];
-  }
 }
 
 Result<std::unique_ptr<VolumeSource>> Finish(std::unique_ptr<TiffFile> file,
@@ -281,14 +245,30 @@ Result<std::unique_ptr<VolumeSource>> OpenImageJ(std::unique_ptr<TiffFile> file,
   if (ij.images < 0 || ij.channels < 0 || ij.slices < 0 || ij.frames < 0) {
     return CorruptError(name + ": ImageJ description has negative counts");
   }
+  // Channels size a table: bound them before anything else.
+  if (ij.channels > kMaxImageJChannels) {
+    return CorruptError(name +
+                        ": ImageJ description declares channels=" + std::to_string(ij.channels) +
+                        ", more than the " + std::to_string(kMaxImageJChannels) + " supported");
+  }
   int64_t c = std::max<int64_t>(1, ij.channels);
   int64_t z = std::max<int64_t>(1, ij.slices);
   int64_t t = std::max<int64_t>(1, ij.frames);
   const std::optional<uint64_t> product = CheckedProduct(
       {static_cast<uint64_t>(c), static_cast<uint64_t>(z), static_cast<uint64_t>(t)});
-  int64_t images = ij.images > 0 ? ij.images : static_cast<int64_t>(product.value_or(0));
-  if (!product || *product > (uint64_t{1} << 40) || images > (int64_t{1} << 40)) {
-    return CorruptError(name + ": ImageJ description declares an absurd number of images");
+  const int64_t images = ij.images > 0 ? ij.images : static_cast<int64_t>(product.value_or(0));
+  // The most images the file can hold, worked out before the description sizes anything: one per
+  // IFD, or (a single IFD: ImageJ's > 4 GB layout) as many whole planes as fit in the file.
+  const uint64_t page_bytes = uint64_t{first.width} * first.height * first.samples_per_pixel *
+                              volume::BytesPerSample(*first.dtype);  // Checked at Open.
+  const uint64_t capacity = file->ifd_count() > 1
+                                ? static_cast<uint64_t>(file->ifd_count())
+                                : std::max<uint64_t>(1, file->file_size() / page_bytes);
+  if (!product || *product > capacity || static_cast<uint64_t>(images) > capacity) {
+    return CorruptError(name + ": ImageJ description declares images=" + std::to_string(images) +
+                        " (channels x slices x frames = " +
+                        (product ? std::to_string(*product) : std::string("overflow")) +
+                        "), but the file can hold at most " + std::to_string(capacity) + " images");
   }
   if (static_cast<uint64_t>(images) != *product) {
     if (ij.channels == 0 && ij.slices == 0 && ij.frames == 0) {
@@ -313,11 +293,7 @@ Result<std::unique_ptr<VolumeSource>> OpenImageJ(std::unique_ptr<TiffFile> file,
   info.dtype = *first.dtype;
   info.time_points = static_cast<int>(std::min<int64_t>(t, INT32_MAX));
   info.time = options.time;
-  if (std::optional<double> um = MicrometresPerUnit(ij.unit)) {
-    if (first.x_resolution) info.spacing_um[0] = PositiveOrNone(*um / *first.x_resolution);
-    if (first.y_resolution) info.spacing_um[1] = PositiveOrNone(*um / *first.y_resolution);
-    if (ij.spacing) info.spacing_um[2] = PositiveOrNone(*um * std::fabs(*ij.spacing));
-  }
+  info.spacing_um = TiffPageSpacing(first, &ij);
 
   PageLayout layout;
   layout.page_channels = samples_are_channels ? 1 : c;
@@ -384,8 +360,7 @@ Result<std::unique_ptr<VolumeSource>> OpenScanImage(std::unique_ptr<TiffFile> fi
   info.dtype = *first.dtype;
   info.time_points = static_cast<int>(std::min<int64_t>(layout.time_points, INT32_MAX));
   info.time = options.time;
-  info.spacing_um[0] = SpacingFromResolution(first.x_resolution, first.resolution_unit);
-  info.spacing_um[1] = SpacingFromResolution(first.y_resolution, first.resolution_unit);
+  info.spacing_um = TiffPageSpacing(first, nullptr);
   info.spacing_um[2] = si.z_step_um;
   std::vector<int64_t> planes;
   for (int64_t zi = 0; zi < layout.z; ++zi) {
@@ -419,8 +394,7 @@ Result<std::unique_ptr<VolumeSource>> OpenPlain(std::unique_ptr<TiffFile> file,
   info.size = {first.width, first.height, static_cast<int64_t>(planes.size())};
   info.channels.resize(first.samples_per_pixel);
   info.dtype = *first.dtype;
-  info.spacing_um[0] = SpacingFromResolution(first.x_resolution, first.resolution_unit);
-  info.spacing_um[1] = SpacingFromResolution(first.y_resolution, first.resolution_unit);
+  info.spacing_um = TiffPageSpacing(first, nullptr);
   const bool samples_are_channels = true;  // One page per z; channel = sample.
   return Finish(std::move(file), std::move(info), options, std::move(planes), samples_are_channels,
                 std::nullopt);
@@ -497,21 +471,6 @@ std::optional<ImageJDescription> ParseImageJDescription(std::string_view text) {
       d.unit = DecodeUnicodeEscapes(value);
   }
   return d;
-}
-
-std::optional<double> MicrometresPerUnit(std::string_view unit) {
-  const std::string u = ToLower(TrimWhitespace(unit));
-  if (u == "micron" || u == "microns" || u == "um" || u == "\xC2\xB5m" || u == "\xCE\xBCm" ||
-      u == "micrometer" || u == "micrometre" || u == "micrometers" || u == "micrometres") {
-    return 1.0;
-  }
-  if (u == "nm" || u == "nanometer" || u == "nanometre" || u == "nanometers") return 1e-3;
-  if (u == "mm" || u == "millimeter" || u == "millimetre" || u == "millimeters") return 1e3;
-  if (u == "cm" || u == "centimeter" || u == "centimetre" || u == "centimeters") return 1e4;
-  if (u == "m" || u == "meter" || u == "metre" || u == "meters") return 1e6;
-  if (u == "inch" || u == "inches" || u == "in") return 25400.0;
-  if (u == "angstrom" || u == "\xC3\x85") return 1e-4;
-  return std::nullopt;
 }
 
 Result<std::unique_ptr<VolumeSource>> OpenTiffStack(std::unique_ptr<TiffFile> file,

@@ -25,6 +25,7 @@
 #include <string_view>
 
 #include "io/open_options.h"
+#include "io/spacing.h"  // MicrometresPerUnit and the spacing rules.
 #include "io/tiff_file.h"
 #include "io/volume_source.h"
 #include "util/result.h"
@@ -46,10 +47,6 @@ struct ImageJDescription {
 
 // Parses a description starting with "ImageJ="; nullopt for anything else.
 std::optional<ImageJDescription> ParseImageJDescription(std::string_view text);
-
-// Micrometres per `unit` ("micron", "um", "µm", "nm", "mm", "cm", "m", "inch" …); nullopt when the
-// unit is unknown or "pixel".
-std::optional<double> MicrometresPerUnit(std::string_view unit);
 
 // Opens `path` as a TIFF stack (see above). options.series must be 0 (a stack has one series);
 // options.time selects the time point; options.spacing_um overrides the file's spacing per axis.

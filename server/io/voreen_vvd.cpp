@@ -2,13 +2,11 @@
 
 #include <cmath>
 #include <cstdint>
-#include <fstream>
-#include <iterator>
 #include <pugixml.hpp>
 #include <string>
-#include <system_error>
 #include <utility>
 
+#include "util/file_reading.h"
 #include "util/strings.h"
 
 namespace octoscope::io {
@@ -16,7 +14,7 @@ namespace {
 
 // A .vvd is a small XML header (with a preview image, some tens of KiB); anything bigger is
 // not one.
-constexpr uintmax_t kMaxVvdBytes = uintmax_t{16} << 20;
+constexpr uint64_t kMaxVvdBytes = uint64_t{16} << 20;
 
 // Voreen's spacing is in millimetres.
 constexpr double kMicrometresPerVoreenUnit = 1000.0;
@@ -32,37 +30,17 @@ Result<int64_t> SizeAttribute(const std::string& name, const pugi::xml_node& raw
   return *v;
 }
 
-// Voreen's scalar format names (vector formats such as "Vector3(uint8)" are not supported).
+// Voreen's scalar format names: the OME-XML spellings ("uint16", "float", "double"; numpy's
+// "float32" is accepted too). Vector formats such as "Vector3(uint8)" are not supported.
 std::optional<volume::DataType> VoreenFormat(std::string_view format) {
-  using volume::DataType;
-  static constexpr std::pair<std::string_view, DataType> kFormats[] = {
-      {"uint8", DataType::kUint8},   {"int8", DataType::kInt8},     {"uint16", DataType::kUint16},
-      {"int16", DataType::kInt16},   {"uint32", DataType::kUint32}, {"int32", DataType::kInt32},
-      {"float", DataType::kFloat32}, {"double", DataType::kFloat64}};
-  for (const auto& [spelling, type] : kFormats) {
-    if (EqualsIgnoreCase(format, spelling)) return type;
-  }
-  return std::nullopt;
+  return volume::DataTypeFromOmeName(format);
 }
 
 }  // namespace
 
 Result<RawLayout> ReadVoreenVvd(const std::filesystem::path& vvd) {
   const std::string name = vvd.string();
-  std::error_code ec;
-  const uintmax_t file_size = std::filesystem::file_size(vvd, ec);
-  if (ec) {
-    if (ec == std::errc::no_such_file_or_directory) return NotFoundError(name + ": not found");
-    return IoError(name + ": " + ec.message());
-  }
-  if (file_size > kMaxVvdBytes) {
-    return ResourceExhaustedError(name + ": " + std::to_string(file_size) +
-                                  " bytes, too large for a Voreen .vvd header");
-  }
-  std::ifstream in(vvd, std::ios::binary);
-  if (!in) return IoError(name + ": cannot open");
-  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) return IoError(name + ": read failed");
+  OCTO_ASSIGN_OR_RETURN(const std::string text, ReadSmallFile(vvd, kMaxVvdBytes));
 
   pugi::xml_document doc;
   pugi::xml_parse_result parsed = doc.load_buffer(text.data(), text.size());

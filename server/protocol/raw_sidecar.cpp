@@ -3,14 +3,12 @@
 #include <cmath>
 #include <cstdint>
 #include <exception>
-#include <fstream>
-#include <iterator>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
-#include <system_error>
 
 #include "util/checked_math.h"
+#include "util/file_reading.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -199,24 +197,7 @@ Result<io::RawLayout> ParseRawSidecar(std::string_view json_text,
 Result<io::RawLayout> LoadRawSidecar(const std::filesystem::path& sidecar_path) {
   const std::string name = sidecar_path.string();
   try {
-    std::error_code ec;
-    const uintmax_t size = std::filesystem::file_size(sidecar_path, ec);
-    if (ec) {
-      if (ec == std::errc::no_such_file_or_directory) return NotFoundError(name + ": not found");
-      return IoError(name + ": " + ec.message());
-    }
-    if (size > kMaxRawSidecarBytes) {
-      return ResourceExhaustedError(name + ": " + std::to_string(size) +
-                                    " bytes, more than a raw sidecar may hold (" +
-                                    std::to_string(kMaxRawSidecarBytes) + ")");
-    }
-    std::ifstream in(sidecar_path, std::ios::binary);
-    if (!in) return IoError(name + ": cannot open");
-    std::string text;
-    text.resize(static_cast<size_t>(size));
-    in.read(text.data(), static_cast<std::streamsize>(size));
-    text.resize(static_cast<size_t>(in.gcount()));
-    if (in.bad()) return IoError(name + ": read failed");
+    OCTO_ASSIGN_OR_RETURN(const std::string text, ReadSmallFile(sidecar_path, kMaxRawSidecarBytes));
 
     // "scan.raw.json" describes "scan.raw".
     std::filesystem::path default_file;

@@ -904,6 +904,70 @@ TEST_F(OmeTiffErrorTest, SeriesAndTimeOutOfRange) {
   ExpectError(Open(path, 0, -1).status(), StatusCode::kOutOfRange, {path.string()});
 }
 
+// Slab-request errors name the file (CheckSlabRequest alone does not know it).
+TEST_F(OmeTiffErrorTest, SlabRequestErrorsNameTheFile) {
+  fs::path path =
+      Write("slab.ome.tif", OmeDoc(PixelsAttrs("XYZCT", kW, kH, 3, 1, 1), "<TiffData/>"));
+  Result<std::unique_ptr<VolumeSource>> opened = Open(path);
+  ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+  std::vector<std::byte> plane((*opened)->SlabBytes(1));
+  ExpectError((*opened)->ReadSlab(1, 0, 1, plane), StatusCode::kOutOfRange,
+              {path.string(), "channel 1"});
+  ExpectError((*opened)->ReadSlab(0, 3, 1, plane), StatusCode::kOutOfRange, {path.string()});
+  std::vector<std::byte> small(3);
+  ExpectError((*opened)->ReadSlab(0, 0, 1, small), StatusCode::kInvalidArgument, {path.string()});
+}
+
+// A decoding error names the file and IFD once (ReadPlane's message already starts with them),
+// followed by the plane it belongs to.
+TEST_F(OmeTiffErrorTest, DecodingErrorNamesFileOnceAndThePlane) {
+  fs::path path = dir_ / "garbled.ome.tif";
+  ASSERT_TRUE(WritePages(path, {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}},
+                         OmeDoc(PixelsAttrs("XYZCT", kW, kH, 3, 1, 1), "<TiffData/>"),
+                         8 /* COMPRESSION_ADOBE_DEFLATE */));
+  {
+    // Page 0's only strip starts right after the 8-byte header: garble its deflate stream.
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(8);
+    f.write("\xff\xff\xff\xff\xff\xff", 6);
+  }
+  Result<std::unique_ptr<VolumeSource>> opened = Open(path);
+  ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+  std::vector<std::byte> plane((*opened)->SlabBytes(1));
+  Status st = (*opened)->ReadSlab(0, 0, 1, plane);
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+  const std::string& m = st.message();
+  const size_t first = m.find(path.string());
+  ASSERT_EQ(first, 0u) << m;
+  EXPECT_EQ(m.find(path.string(), first + 1), std::string::npos) << "file named twice: " << m;
+  EXPECT_NE(m.find("IFD 0"), std::string::npos) << m;
+  EXPECT_NE(m.find("(plane z 0, channel 0)"), std::string::npos) << m;
+  // The other planes still read.
+  EXPECT_TRUE((*opened)->ReadSlab(0, 1, 1, plane).ok());
+}
+
+// fs::absolute throws when the working directory is gone; opening a relative path must then
+// return an error instead.
+TEST_F(OmeTiffErrorTest, RelativePathWithoutWorkingDirectoryIsAnError) {
+  const fs::path previous = fs::current_path();
+  const fs::path gone = dir_ / "gone";
+  fs::create_directories(gone);
+  ASSERT_EQ(::chdir(gone.c_str()), 0);
+  fs::remove(gone);
+  Result<std::unique_ptr<VolumeSource>> opened(InternalError("not run"));
+  try {
+    opened = Open("relative.ome.tif");
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "threw: " << e.what();
+  }
+  ASSERT_EQ(::chdir(previous.c_str()), 0);
+  ASSERT_FALSE(opened.ok());
+  EXPECT_NE(opened.status().code(), StatusCode::kInternal) << opened.status().ToString();
+  EXPECT_NE(opened.status().message().find("relative.ome.tif"), std::string::npos)
+      << opened.status().ToString();
+}
+
 TEST_F(OmeTiffErrorTest, NotOme) {
   fs::path path = Write("plain.tif", "just a description");
   ExpectError(Open(path).status(), StatusCode::kUnsupported, {path.string()});

@@ -289,25 +289,33 @@ TEST_F(RawVolumeTest, BadLayoutsAreRefused) {
 
   RawLayout zero_size = good;
   zero_size.size[1] = 0;
-  EXPECT_EQ(OpenRawVolume(zero_size, OpenOptions{}).status().code(), StatusCode::kInvalidArgument);
+  // Layouts come from a sidecar file: impossible values are corruption of that file.
+  EXPECT_EQ(OpenRawVolume(zero_size, OpenOptions{}).status().code(), StatusCode::kCorrupt);
 
   RawLayout negative = good;
   negative.size[2] = -4;
-  EXPECT_FALSE(OpenRawVolume(negative, OpenOptions{}).ok());
+  EXPECT_EQ(OpenRawVolume(negative, OpenOptions{}).status().code(), StatusCode::kCorrupt);
 
   RawLayout no_channels = good;
   no_channels.channels = 0;
-  EXPECT_FALSE(OpenRawVolume(no_channels, OpenOptions{}).ok());
+  EXPECT_EQ(OpenRawVolume(no_channels, OpenOptions{}).status().code(), StatusCode::kCorrupt);
 
   RawLayout overflow = good;
   overflow.size = {int64_t{1} << 40, int64_t{1} << 40, 2};
   Result<std::unique_ptr<VolumeSource>> r = OpenRawVolume(overflow, OpenOptions{});
   ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.status().code(), StatusCode::kCorrupt);
   EXPECT_NE(r.status().message().find("overflow"), std::string::npos) << r.status().message();
 
   RawLayout names = good;
   names.channel_names = {"only one"};
-  EXPECT_EQ(OpenRawVolume(names, OpenOptions{}).status().code(), StatusCode::kInvalidArgument);
+  EXPECT_EQ(OpenRawVolume(names, OpenOptions{}).status().code(), StatusCode::kCorrupt);
+
+  RawLayout folder = good;
+  folder.data_file = dir_;
+  Status st = OpenRawVolume(folder, OpenOptions{}).status();
+  EXPECT_EQ(st.code(), StatusCode::kUnsupported) << st.ToString();
+  EXPECT_NE(st.message().find(dir_.string()), std::string::npos) << st.ToString();
 
   RawLayout missing = good;
   missing.data_file = dir_ / "nope.raw";
@@ -334,10 +342,14 @@ TEST_F(RawVolumeTest, BadSlabRequestsAreRefused) {
   auto source = OpenRawVolume(layout, OpenOptions{});
   ASSERT_TRUE(source.ok());
   std::vector<std::byte> plane(8);
-  EXPECT_FALSE((*source)->ReadSlab(1, 0, 1, plane).ok());  // No channel 1.
-  EXPECT_FALSE((*source)->ReadSlab(0, 2, 1, plane).ok());  // No plane 2.
   std::vector<std::byte> wrong(7);
-  EXPECT_FALSE((*source)->ReadSlab(0, 0, 1, wrong).ok());  // Buffer size.
+  // Each error names the file.
+  for (Status st : {(*source)->ReadSlab(1, 0, 1, plane),     // No channel 1.
+                    (*source)->ReadSlab(0, 2, 1, plane),     // No plane 2.
+                    (*source)->ReadSlab(0, 0, 1, wrong)}) {  // Buffer size.
+    EXPECT_FALSE(st.ok());
+    EXPECT_NE(st.message().find(layout.data_file.string()), std::string::npos) << st.ToString();
+  }
   EXPECT_TRUE((*source)->ReadSlab(0, 1, 1, plane).ok());
 }
 

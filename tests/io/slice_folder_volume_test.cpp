@@ -469,6 +469,64 @@ TEST_F(SliceFolderTest, SpacingFromResolutionUnits) {
   for (int axis = 0; axis < 3; ++axis) EXPECT_FALSE((*b)->info().spacing_um[axis].has_value());
 }
 
+// A slice whose image page follows a reduced-resolution thumbnail: its ImageJ description (not
+// kept in the TiffFile index, which holds IFD 0's only) still gives the spacing.
+TEST_F(SliceFolderTest, SpacingFromTheImagePageAfterAThumbnail) {
+  for (int z = 0; z < 2; ++z) {
+    const std::filesystem::path path = dir_ / Name("s%d.tif", z);
+    TIFF* tif = TIFFOpen(path.c_str(), "w");
+    ASSERT_NE(tif, nullptr);
+    auto page = [&](uint32_t width, uint32_t height, bool thumbnail) {
+      TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, width);
+      TIFFSetField(tif, TIFFTAG_IMAGELENGTH, height);
+      TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 16);
+      TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
+      TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+      TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+      TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, height);
+      if (thumbnail) {
+        TIFFSetField(tif, TIFFTAG_SUBFILETYPE, FILETYPE_REDUCEDIMAGE);
+      } else {
+        TIFFSetField(tif, TIFFTAG_IMAGEDESCRIPTION, "ImageJ=1.53t\nunit=micron\nspacing=3.5\n");
+        TIFFSetField(tif, TIFFTAG_XRESOLUTION, 2.0);
+        TIFFSetField(tif, TIFFTAG_YRESOLUTION, 4.0);
+        TIFFSetField(tif, TIFFTAG_RESOLUTIONUNIT, RESUNIT_NONE);
+      }
+      std::vector<uint16_t> row(width);
+      for (uint32_t y = 0; y < height; ++y) {
+        for (uint32_t x = 0; x < width; ++x) row[x] = static_cast<uint16_t>(100 * z + x + 10 * y);
+        ASSERT_EQ(TIFFWriteScanline(tif, row.data(), y, 0), 1);
+      }
+      ASSERT_TRUE(TIFFWriteDirectory(tif));
+    };
+    page(3, 2, true);
+    page(6, 4, false);
+    TIFFClose(tif);
+  }
+  auto source = OpenSliceFolder(dir_, OpenOptions{});
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ((*source)->info().size, (std::array<int64_t, 3>{6, 4, 2}));
+  EXPECT_DOUBLE_EQ((*source)->info().spacing_um[0].value_or(0), 0.5);
+  EXPECT_DOUBLE_EQ((*source)->info().spacing_um[1].value_or(0), 0.25);
+  EXPECT_DOUBLE_EQ((*source)->info().spacing_um[2].value_or(0), 3.5);
+  ExpectVoxels(**source, 1);
+}
+
+// Slab-request errors name the folder (CheckSlabRequest alone does not know it).
+TEST_F(SliceFolderTest, SlabRequestErrorsNameTheFolder) {
+  WriteSlice(dir_ / "s1.tif", 0, 0);
+  WriteSlice(dir_ / "s2.tif", 0, 1);
+  auto source = OpenSliceFolder(dir_, OpenOptions{});
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  std::vector<std::byte> plane((*source)->SlabBytes(1));
+  std::vector<std::byte> small(5);
+  for (Status st : {(*source)->ReadSlab(1, 0, 1, plane), (*source)->ReadSlab(0, 2, 1, plane),
+                    (*source)->ReadSlab(0, 0, 1, small)}) {
+    EXPECT_FALSE(st.ok());
+    EXPECT_NE(st.message().find(dir_.string()), std::string::npos) << st.ToString();
+  }
+}
+
 TEST_F(SliceFolderTest, ManySlicesThroughTheBoundedHandleCache) {
   // More slices than kMaxOpenSliceFiles, read forwards, backwards and from several threads.
   const int slices = kMaxOpenSliceFiles + 9;

@@ -4,7 +4,9 @@
 #include "io/tiff_file.h"
 
 #include <gtest/gtest.h>
+#include <sys/mman.h>
 #include <tiffio.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -347,9 +349,21 @@ TEST_F(TiffFileTest, ReadsDescriptionResolutionAndOffsets) {
   ASSERT_TRUE(file.ok()) << file.status().ToString();
   ASSERT_EQ((*file)->ifd_count(), 3);
   EXPECT_EQ((*file)->path(), path);
+  // The index keeps IFD 0's description; the others are read on demand.
   EXPECT_EQ((*file)->ifd(0).description, "first page");
   EXPECT_EQ((*file)->ifd(1).description, "");
-  EXPECT_EQ((*file)->ifd(2).description, "third");
+  EXPECT_EQ((*file)->ifd(2).description, "");
+  EXPECT_EQ(*(*file)->Description(0), "first page");
+  EXPECT_EQ(*(*file)->Description(1), "");
+  EXPECT_EQ(*(*file)->Description(2), "third");
+  EXPECT_EQ((*file)->Description(2, 4).status().code(), StatusCode::kResourceExhausted);
+  EXPECT_EQ((*file)->Description(0, 4).status().code(), StatusCode::kResourceExhausted);
+  EXPECT_EQ((*file)->Description(3).status().code(), StatusCode::kOutOfRange);
+  // Reading descriptions moves libtiff between IFDs; planes still decode correctly after it.
+  std::vector<std::byte> plane(uint64_t{spec.width} * spec.height * 2);
+  ASSERT_TRUE((*file)->ReadPlane(0, 0, plane).ok());
+  EXPECT_EQ(*(*file)->Description(2), "third");
+  ASSERT_TRUE((*file)->ReadPlane(0, 0, plane).ok());
   EXPECT_EQ((*file)->ifd(0).resolution_unit, RESUNIT_CENTIMETER);
   ASSERT_TRUE((*file)->ifd(0).x_resolution.has_value());
   EXPECT_DOUBLE_EQ(*(*file)->ifd(0).x_resolution, 2000.0);
@@ -496,7 +510,9 @@ TEST_F(TiffFileTest, MissingFileAndDirectory) {
   Result<std::unique_ptr<TiffFile>> missing = TiffFile::Open(dir_ / "nope.tif");
   EXPECT_EQ(missing.status().code(), StatusCode::kNotFound);
   ExpectErrorNaming(missing.status(), dir_ / "nope.tif");
-  ExpectErrorNaming(TiffFile::Open(dir_).status(), dir_);
+  Status folder = TiffFile::Open(dir_).status();
+  EXPECT_EQ(folder.code(), StatusCode::kUnsupported);
+  ExpectErrorNaming(folder, dir_);
 }
 
 TEST_F(TiffFileTest, EmptyFile) {
@@ -739,6 +755,214 @@ TEST_F(TiffFileTest, OutOfRangeRequests) {
   EXPECT_EQ(raw[0], std::byte{'I'});
   // And a good read still works afterwards.
   EXPECT_TRUE((*file)->ReadPlane(1, 1, plane).ok());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Regressions for crafted files (each is also a fuzz regression input in fuzz/regressions/).
+
+fs::path Regression(const std::string& name) {
+  return fs::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
+}
+
+// A writable buffer of `bytes` (gigabytes) whose pages all alias one small memfd block: lets a
+// test hand ReadPlane the plane of a 2^32-row image while touching only kBlock bytes of memory.
+// Every alias shows the same bytes, so a fill of the block shows everywhere.
+class AliasedBuffer {
+ public:
+  static constexpr uint64_t kBlock = uint64_t{8} << 20;
+
+  explicit AliasedBuffer(uint64_t bytes) : size_(bytes) {
+    mapped_ = (bytes + kBlock - 1) / kBlock * kBlock;
+    fd_ = ::memfd_create("aliased-buffer", MFD_CLOEXEC);
+    if (fd_ < 0 || ::ftruncate(fd_, static_cast<off_t>(kBlock)) != 0) return;
+    void* base =
+        ::mmap(nullptr, mapped_, PROT_NONE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    if (base == MAP_FAILED) return;
+    base_ = static_cast<std::byte*>(base);
+    for (uint64_t at = 0; at < mapped_; at += kBlock) {
+      if (::mmap(base_ + at, kBlock, PROT_READ | PROT_WRITE, MAP_SHARED | MAP_FIXED, fd_, 0) ==
+          MAP_FAILED) {
+        return;
+      }
+    }
+    ok_ = true;
+  }
+  ~AliasedBuffer() {
+    if (base_ != nullptr) ::munmap(base_, mapped_);
+    if (fd_ >= 0) ::close(fd_);
+  }
+  AliasedBuffer(const AliasedBuffer&) = delete;
+  AliasedBuffer& operator=(const AliasedBuffer&) = delete;
+
+  bool ok() const { return ok_; }
+  std::span<std::byte> span() { return {base_, size_}; }
+
+ private:
+  uint64_t size_ = 0;
+  uint64_t mapped_ = 0;
+  int fd_ = -1;
+  std::byte* base_ = nullptr;
+  bool ok_ = false;
+};
+
+// Bug: with RowsPerStrip 0xFFFFFFFF and a height > 2^31, strips per plane were computed in 32 bits
+// and wrapped to 0, so ReadPlane returned OK without decoding anything. The file's one strip is a
+// truncated deflate stream: decoding it must be attempted, and fail.
+TEST_F(TiffFileTest, PlaneTallerThan2To31RowsInOneStripIsDecoded) {
+  const fs::path path = Regression("strips-per-plane-wraps.tif");
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  ASSERT_EQ((*file)->ifd(0).height, 3000000000u);
+  AliasedBuffer plane(3000000000u);
+  ASSERT_TRUE(plane.ok());
+  Status st = (*file)->ReadPlane(0, 0, plane.span());
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+  ExpectErrorNaming(st, path);
+  EXPECT_NE(st.message().find("strip 0"), std::string::npos) << st.ToString();
+}
+
+// The reviewer's 1 x 4e9 image of four 2^30-row tiles: with 32-bit loop counters `ty +=
+// tile_height` would wrap past 2^32 and never end. This libtiff refuses tile grids whose count
+// computation would wrap ("zero number of tiles"), so the file cannot be opened at all; ReadPlane
+// loops in 64 bits anyway. The refusal must be a clear error, not a hang.
+TEST_F(TiffFileTest, TileGridNearTwoToThe32IsRefusedNotLooped) {
+  const fs::path path = Regression("tile-row-loop-wraps-hang.tif");
+  Status st = TiffFile::Open(path).status();
+  EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+  ExpectErrorNaming(st, path);
+}
+
+// Bug: Open left libtiff on the last IFD without the JPEG colour-mode set-up, and the first read
+// of that IFD skipped the set-up, so single-page JPEG-YCbCr files could not be decoded.
+TEST_F(TiffFileTest, SinglePageJpegYCbCrDecodesAsRgb) {
+  const uint32_t width = 48, height = 32;
+  auto value = [](uint32_t x, uint32_t y, int s) {
+    return 30.0 + 2.0 * x + 1.5 * y + 40.0 * s;  // A smooth ramp per channel.
+  };
+  const fs::path path = dir_ / "ycbcr.tif";
+  {
+    TIFF* tif = TIFFOpen(path.c_str(), "w");
+    ASSERT_NE(tif, nullptr);
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, width);
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, height);
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 3);
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 8);
+    TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+    TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_JPEG);
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_YCBCR);
+    TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);  // We hand libtiff RGB rows.
+    TIFFSetField(tif, TIFFTAG_JPEGQUALITY, 95);
+    TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, 16);
+    std::vector<uint8_t> row(width * 3);
+    for (uint32_t y = 0; y < height; ++y) {
+      for (uint32_t x = 0; x < width; ++x) {
+        for (int s = 0; s < 3; ++s) row[x * 3 + s] = static_cast<uint8_t>(value(x, y, s));
+      }
+      ASSERT_EQ(TIFFWriteScanline(tif, row.data(), y, 0), 1);
+    }
+    TIFFClose(tif);
+  }
+  for (const fs::path& p : {path, Regression("jpeg-ycbcr-single-page.tif")}) {
+    SCOPED_TRACE(p.string());
+    auto file = TiffFile::Open(p);
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    ASSERT_EQ((*file)->ifd_count(), 1);
+    EXPECT_EQ((*file)->ifd(0).photometric, PHOTOMETRIC_YCBCR);
+    const TiffIfd& ifd = (*file)->ifd(0);
+    std::vector<std::byte> plane(uint64_t{ifd.width} * ifd.height);
+    for (int s = 0; s < 3; ++s) {
+      Status st = (*file)->ReadPlane(0, s, plane);
+      ASSERT_TRUE(st.ok()) << st.ToString();
+      if (p != path) continue;  // The crafted file's content is unknown; it must decode.
+      int worst = 0;
+      for (uint32_t y = 0; y < height; ++y) {
+        for (uint32_t x = 0; x < width; ++x) {
+          const int got = static_cast<int>(plane[y * width + x]);
+          worst = std::max(worst, std::abs(got - static_cast<int>(value(x, y, s))));
+        }
+      }
+      EXPECT_LE(worst, 8) << "sample " << s;  // JPEG (with chroma subsampling) is lossy.
+    }
+  }
+}
+
+// Bug: a compressed chunky page decoded whole strips of all its samples into scratch memory, so a
+// 280-byte file (20000x20000, 64 uint16 samples per pixel, one deflate strip) asked for 51 GB.
+TEST_F(TiffFileTest, ChunkyStripsLargerThanThePlaneLimitAreRefusedAtOpen) {
+  const fs::path crafted = Regression("chunky-strip-51gb-scratch.tif");
+  Status st = TiffFile::Open(crafted).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
+  ExpectErrorNaming(st, crafted);
+
+  // A 16x8 uint16 RGB page in one strip: a plane of one sample is 256 bytes, a strip 768.
+  TiffFixtureSpec spec;
+  spec.samples_per_pixel = 3;
+  spec.rows_per_strip = 8;
+  spec.compression = COMPRESSION_ADOBE_DEFLATE;
+  const fs::path path = dir_ / "rgb.tif";
+  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int page, int sample) {
+    return PatternFor(DataType::kUint16, x, y, page, sample);
+  }));
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = 767;
+  st = TiffFile::Open(path, limits).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
+  ExpectErrorNaming(st, path);
+  limits.max_plane_bytes = 768;
+  auto file = TiffFile::Open(path, limits);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  std::vector<std::byte> plane(16 * 8 * 2);
+  for (int s = 0; s < 3; ++s) {
+    ASSERT_TRUE((*file)->ReadPlane(0, s, plane).ok());
+    EXPECT_EQ(CountMismatches(plane, DataType::kUint16, 16, 8, 0, s), 0) << "sample " << s;
+  }
+}
+
+// Bug: tiles were refused when larger than "4 planes + 1 MiB", which refuses legitimate images
+// narrower than one tile. Now only the scratch limit bounds a tile.
+TEST_F(TiffFileTest, ImageSmallerThanOneTileDecodes) {
+  TiffFixtureSpec spec;
+  spec.width = 1000;
+  spec.height = 10;
+  spec.tile_width = 1024;
+  spec.tile_height = 1024;
+  spec.compression = COMPRESSION_ADOBE_DEFLATE;
+  const fs::path path = dir_ / "narrow.tif";
+  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int page, int sample) {
+    return PatternFor(DataType::kUint16, x, y, page, sample);
+  }));
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  ASSERT_TRUE((*file)->ifd(0).tiled);
+  std::vector<std::byte> plane(1000 * 10 * 2);
+  Status st = (*file)->ReadPlane(0, 0, plane);
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  EXPECT_EQ(CountMismatches(plane, DataType::kUint16, 1000, 10, 0, 0), 0);
+
+  // A tile (2 MiB) above the limit is refused when the file is opened.
+  TiffFile::Limits limits;
+  limits.max_plane_bytes = 1 << 20;
+  st = TiffFile::Open(path, limits).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
+  ExpectErrorNaming(st, path);
+}
+
+// Bug: every IFD's ImageDescription was copied into the index (3000 IFDs sharing a 1 MB text took
+// 3 GB). Only IFD 0's is kept; the others are read on demand.
+TEST_F(TiffFileTest, LaterDescriptionsAreNotCopiedIntoTheIndex) {
+  const fs::path path = Regression("description-per-ifd-amplification.tif");
+  auto file = TiffFile::Open(path);
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  ASSERT_EQ((*file)->ifd_count(), 350);
+  const std::string& first = (*file)->ifd(0).description;
+  EXPECT_GT(first.size(), 16000u);
+  EXPECT_TRUE(first.starts_with("ImageJ="));
+  for (int i = 1; i < (*file)->ifd_count(); ++i) {
+    ASSERT_TRUE((*file)->ifd(i).description.empty()) << "IFD " << i;
+  }
+  Result<std::string> last = (*file)->Description(349);
+  ASSERT_TRUE(last.ok()) << last.status().ToString();
+  EXPECT_EQ(*last, first);
 }
 
 TEST_F(TiffFileTest, ContiguousDataOffset) {

@@ -536,6 +536,108 @@ TEST_F(TiffStackTest, ImageJInconsistentCountsAreErrors) {
   ExpectErrorNaming(st, missing);
 }
 
+fs::path Regression(const std::string& name) {
+  return fs::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
+}
+
+// Bug: ImageJ counts sized allocations before the file was consulted: images=10^12 reserved a
+// plane table of 8 TB (bad_alloc), channels=2*10^8 a channel list of 9 GB. Claims are now checked
+// against what the file can hold, and channels capped, before anything is allocated.
+TEST_F(TiffStackTest, ImageJCountsBeyondTheFileAreRefusedBeforeAllocating) {
+  for (const char* name : {"imagej-images-bad-alloc.tif", "imagej-channels-9gb-table.tif"}) {
+    const fs::path path = Regression(name);
+    Status st = OpenTiffStack(path, OpenOptions{}).status();
+    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+    ExpectErrorNaming(st, path);
+  }
+  TiffFixtureSpec spec;
+  spec.pages = 2;
+  struct Case {
+    const char* description;
+    const char* needle;
+  };
+  const Case cases[] = {
+      {"ImageJ=1.54f\nimages=1000000000000\n", "can hold at most"},
+      {"ImageJ=1.54f\nimages=9223372036854775807\n", "can hold at most"},
+      {"ImageJ=1.54f\nchannels=200000000\nimages=200000000\n", "channels=200000000"},
+      {"ImageJ=1.54f\nchannels=65537\n", "channels=65537"},
+      {"ImageJ=1.54f\nslices=4294967296\nframes=4294967296\n", "can hold at most"},
+      {"ImageJ=1.54f\nchannels=2\nslices=2\n", "can hold at most 2 images"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.description);
+    spec.descriptions = {c.description};
+    const fs::path path = Fixture("counts.tif", spec);
+    Status st = OpenTiffStack(path, OpenOptions{}).status();
+    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+    ExpectErrorNaming(st, path);
+    EXPECT_NE(st.message().find(c.needle), std::string::npos) << st.ToString();
+  }
+  // Counts the file does hold still open.
+  spec.descriptions = {"ImageJ=1.54f\nchannels=2\nimages=2\n"};
+  auto ok = OpenTiffStack(Fixture("two.tif", spec), OpenOptions{});
+  ASSERT_TRUE(ok.ok()) << ok.status().ToString();
+  EXPECT_EQ((*ok)->info().channel_count(), 2);
+}
+
+// Bug: ScanImage products (channels x frames x slices, fly-back) overflowed to 0 and the page count
+// was divided by it (SIGFPE). Metadata that overflows or needs more pages than the file has is
+// ignored: the file opens as a plain stack.
+TEST_F(TiffStackTest, ScanImageMetadataThatDoesNotFitOpensAsAPlainStack) {
+  {
+    const fs::path path = Regression("scanimage-div-by-zero.tif");
+    auto source = OpenTiffStack(path, OpenOptions{});
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    EXPECT_EQ((*source)->info().size[2], 1);
+    EXPECT_EQ((*source)->info().channel_count(), 1);
+  }
+  std::string channels64 = "[1";
+  for (int c = 2; c <= 64; ++c) {
+    channels64 += ';';  // Not `";" + to_string`: GCC 12 warns (-Wrestrict) on that falsely.
+    channels64 += std::to_string(c);
+  }
+  channels64 += "]";
+  TiffFixtureSpec spec;
+  spec.pages = 4;
+  struct Case {
+    std::string metadata;
+    int64_t z, channels, time_points;  // Expected: ScanImage's layout, or the plain 4 x 1 x 1.
+  };
+  const Case cases[] = {
+      // Fits: 2 channels x 2 slices, one volume (shows metadata in the description is used).
+      {"SI.hChannels.channelSave = [1;2]\nSI.hStackManager.enable = true\n"
+       "SI.hStackManager.actualNumSlices = 2\n",
+       2, 2, 1},
+      // 64 x 2^29 x 2^29 wraps to 0 in 64 bits.
+      {"SI.hChannels.channelSave = " + channels64 +
+           "\nSI.hStackManager.enable = true\nSI.hStackManager.actualNumSlices = 536870912\n"
+           "SI.hStackManager.framesPerSlice = 536870912\n",
+       4, 1, 1},
+      // More channels than pages.
+      {"SI.hChannels.channelSave = [1;2;3;4;5]\n", 4, 1, 1},
+      // Fly-back frames that make a volume longer than the file.
+      {"SI.hChannels.channelSave = [1]\nSI.hFastZ.enable = true\n"
+       "SI.hStackManager.actualNumSlices = 2\n"
+       "SI.hStackManager.numFramesPerVolumeWithFlyback = 999999999\n",
+       4, 1, 1},
+      // Fly-back that fits: 2 slices + 1 fly-back frame per volume, one volume in 4 pages.
+      {"SI.hChannels.channelSave = [1]\nSI.hFastZ.enable = true\n"
+       "SI.hStackManager.actualNumSlices = 2\n"
+       "SI.hStackManager.numFramesPerVolumeWithFlyback = 3\n",
+       2, 1, 1},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.metadata);
+    spec.descriptions = {c.metadata};
+    const fs::path path = Fixture("si.tif", spec);
+    auto source = OpenTiffStack(path, OpenOptions{});
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    EXPECT_EQ((*source)->info().size[2], c.z);
+    EXPECT_EQ((*source)->info().channel_count(), c.channels);
+    EXPECT_EQ((*source)->info().time_points, c.time_points);
+  }
+}
+
 // Builds an ImageJ file as ImageJ writes one > 4 GB: a single IFD right after the header, then
 // the pixel data of all `images` uint16 images back to back (the IFD describes only the first).
 struct ContiguousFile {
