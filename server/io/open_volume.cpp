@@ -34,7 +34,10 @@ Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar
     return UnsupportedError(sidecar.string() + ": JSON raw sidecars are not enabled");
   }
   OCTO_ASSIGN_OR_RETURN(RawLayout layout, options.load_raw_sidecar(sidecar));
-  return OpenRawVolume(layout, options);
+  auto source = OpenRawVolume(layout, options);
+  // The raw file's error names the raw file; the user named the sidecar: say both.
+  if (!source.ok()) return source.status().WithContext(sidecar.string());
+  return source;
 }
 
 }  // namespace
@@ -54,7 +57,9 @@ Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const Ope
   }
   if (EndsWithIgnoreCase(name, ".vvd")) {
     OCTO_ASSIGN_OR_RETURN(RawLayout layout, ReadVoreenVvd(path));
-    return OpenRawVolume(layout, options);
+    auto source = OpenRawVolume(layout, options);
+    if (!source.ok()) return source.status().WithContext(path.string());
+    return source;
   }
   if (EndsWithIgnoreCase(name, ".json")) return OpenRawWithSidecar(path, options);
   if (HasTiffSignature(path)) {

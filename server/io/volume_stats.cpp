@@ -1,5 +1,7 @@
 #include "io/volume_stats.h"
 
+#include "util/target_clones.h"
+
 #include <algorithm>
 #include <cmath>
 #include <condition_variable>
@@ -87,7 +89,7 @@ void AccumulateFloats(const std::byte* data, size_t n, Accumulator& acc) {
 
 // The common microscopy type gets an AVX2 clone picked at load time (GCC function multiversioning):
 // unsigned 16-bit min/max are single instructions there, and twice as wide.
-__attribute__((target_clones("avx2", "default"))) void AccumulateUint16(const std::byte* data,
+OCTO_TARGET_CLONES_AVX2 void AccumulateUint16(const std::byte* data,
                                                                         size_t n,
                                                                         Accumulator& acc) {
   AccumulateInts<uint16_t>(data, n, acc);
