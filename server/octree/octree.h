@@ -1,0 +1,270 @@
+// Octree: the paper's multi-channel octree over a bricked mipmap, built incrementally from
+// blocks of voxels ("Incremental Construction"). Every node covers a brick of its level
+// (BrickGeometry); a node either owns a stored brick in the BrickPool (interior + one-voxel apron,
+// channels interleaved) or is represented by its per-channel averages alone (homogeneous, or
+// never written: the background). Nodes live in child groups of 8 consecutive ids — the device
+// node buffer's layout (node_encoding.h): node id = 8 * group + octant, the root is node 0 in
+// the pseudo-group 0, freed groups are reused lowest-first.
+//
+// Insert(channel, box, data) performs the paper's three steps:
+//  1. the block's voxels are copied into every EXISTING level-0 brick whose stored box (with
+//     apron) overlaps the block, creating the nodes (always all 8 children) and bricks whose
+//     interior it touches; a brick is allocated only when the node gets a value different from
+//     its current uniform value (its rounded average; the background for fresh nodes);
+//  2. the dirty region is propagated to the root: at level L the dirty region is the parent-voxel
+//     cover of level L-1's, and every parent voxel is the integer mean, round half up,
+//     (sum + n/2) / n, of its n VALID children (virtual voxels never count), written into every
+//     existing level-L brick whose stored box holds it;
+//  3. per node and channel min/max/avg (over the node's valid interior voxels) and subtree
+//     min/max are updated bottom-up; a COMPLETE node (every valid voxel of its region written at
+//     least once in every channel) whose brick is homogeneous in every channel (max - min <=
+//     tolerance) drops its brick and keeps its averages; a complete node whose whole subtree is
+//     homogeneous also loses its children. Incomplete nodes are never pruned, so with each voxel
+//     written once the final structure (per node key: stats, children, brick bytes) is
+//     bit-identical for every insertion order and block shape. Node and brick IDS depend on the
+//     order of creation and so are not part of that guarantee.
+//
+// Aprons: a stored brick's apron always equals the neighbouring level-L voxels as currently
+// represented: the neighbour's brick interior if it has one, else the rounded average of the
+// deepest existing node covering them; virtual voxels hold the background. Allocation initialises
+// the apron from the neighbours, writes update every brick storing the voxel, and dropping a brick
+// or a subtree rewrites the neighbours' aprons from the new representation. A voxel on a brick
+// face is written twice, on an edge 4 times, on a corner 8 times: for 64^3 bricks that is
+// 66^3/64^3 - 1 = 9.7 % more voxel writes (and pool bytes) per level, for 32^3 bricks 19.9 %.
+//
+// Costs (measured, 2-core VM, 256x256x128 uint16, 1 channel, 32^3 bricks, RAM page store): z-slab
+// inserts ~30 MB/s, one-shot ~80 MB/s. Slabs are slower because step 3 rescans the whole valid
+// interior of every touched brick for min/max/avg (a brick of bs_z slabs is rescanned bs_z times);
+// incremental min/max bookkeeping would remove that.
+//
+// Overwrites: writing a voxel again replaces its value everywhere (it is still "written"). If it
+// lands in a node that was already pruned, the node (and missing nodes below it, created from its
+// averages) gets a brick initialised from the AVERAGES first; so with a threshold > 0 the pruned
+// brick regains the new data but not the old sub-threshold detail. With threshold 0 nothing is
+// lost (a pruned brick was exactly constant).
+//
+// Thread safety: Insert may be called from several threads at once (typically one builder thread
+// per channel); inserts are serialised internally by one mutex (the paper's per-channel
+// parallelism is not exploited: steps 2 and 3 of one channel read bricks other channels'
+// pruning could drop). GetNode, ReadBrick, stats, DrainChanges, Save and Flush may be called at
+// any time from any thread: the node table is guarded by a shared_mutex (readers shared, the
+// inserting thread exclusive for each mutation, never while holding a page pin), brick bytes by
+// striped mutexes, so a reader always sees a consistent node and an untorn brick.
+#ifndef OCTOSCOPE_OCTREE_OCTREE_H_
+#define OCTOSCOPE_OCTREE_OCTREE_H_
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <istream>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <ostream>
+#include <set>
+#include <shared_mutex>
+#include <span>
+#include <unordered_map>
+#include <vector>
+
+#include "octree/brick_geometry.h"
+#include "octree/brick_pool.h"
+#include "octree/change_log.h"
+#include "octree/write_coverage.h"
+#include "paging/page_cache.h"
+#include "util/result.h"
+#include "util/status.h"
+#include "volume/volume_info.h"
+
+namespace octoscope::octree {
+
+struct OctreeOptions {
+  Vec3 brick_size = kDefaultBrickSize;  // Even, >= 2 per axis.
+  // Stored sample size: 1 (uint8) or 2 (uint16). 0 = from VolumeInfo::dtype (1 for 8-bit types,
+  // else 2). Ignored by the BrickGeometry overload of Create (the geometry says).
+  int bytes_per_sample = 0;
+  // Homogeneity threshold as a fraction of each channel's value range (paper: 5 %); 0 prunes
+  // only exactly constant bricks. Per-channel tolerance = floor(threshold * range).
+  double homogeneity_threshold = 0.0;
+  // Per-channel value range for the threshold; empty = the stored type's (255 or 65535).
+  std::vector<uint32_t> value_range;
+  // Per-channel ABSOLUTE tolerances (max - min <= tolerance is homogeneous); when non-empty it
+  // overrides threshold and range.
+  std::vector<uint32_t> homogeneity_tolerance;
+  // Per-channel background value (what not-yet-inserted voxels show); empty = 0.
+  std::vector<uint16_t> background;
+};
+
+// One channel's statistics of a node. For a node with a brick: over the valid interior voxels of
+// its brick (avg = integer sum / count). For a node without one: min = max = its uniform value
+// and avg its average (exact for pruned nodes, the background for fresh ones).
+struct ChannelSummary {
+  uint16_t min = 0;
+  uint16_t max = 0;
+  uint16_t subtree_min = 0;  // Over this node and its non-virtual descendants.
+  uint16_t subtree_max = 0;
+  double avg = 0.0;
+  bool operator==(const ChannelSummary&) const = default;
+};
+
+// A consistent copy of one node.
+struct NodeSnapshot {
+  uint32_t id = 0;
+  NodeKey key;
+  uint32_t child_group = 0;  // 0 = no children; else children are ids 8*child_group + octant.
+  uint32_t brick = 0;        // 0 = no brick (homogeneous / never written / virtual).
+  bool is_virtual = false;   // No valid voxel: never has a brick, stores the background.
+  bool complete = false;     // Every valid voxel written in every channel.
+  std::vector<ChannelSummary> channels;
+
+  bool has_children() const { return child_group != 0; }
+  bool has_brick() const { return brick != 0; }
+};
+
+struct OctreeStats {
+  uint64_t nodes = 0;              // Live nodes, virtual ones included (groups of 8 + root).
+  uint64_t bricks = 0;             // Live bricks.
+  uint64_t homogeneous_nodes = 0;  // Live non-virtual nodes without a brick.
+  uint64_t pool_bytes = 0;         // bricks * brick bytes.
+  bool operator==(const OctreeStats&) const = default;
+};
+
+class Octree {
+ public:
+  static constexpr uint32_t kFormatVersion = 1;
+
+  // An empty tree (only the root, storing the background) whose bricks live on `cache`'s pages.
+  // `cache` must outlive the octree; its pages are the brick pool (bricks_per_page =
+  // page_bytes / brick_bytes; kInvalidArgument when a page cannot hold one brick). Options are
+  // validated (kInvalidArgument naming the field).
+  static Result<std::unique_ptr<Octree>> Create(const BrickGeometry& geometry,
+                                                const OctreeOptions& options,
+                                                paging::PageCache* cache);
+  // The same for a volume: size and channel count from `info`, brick size and sample size from
+  // `options`.
+  static Result<std::unique_ptr<Octree>> Create(const volume::VolumeInfo& info,
+                                                const OctreeOptions& options,
+                                                paging::PageCache* cache);
+
+  ~Octree();
+  Octree(const Octree&) = delete;
+  Octree& operator=(const Octree&) = delete;
+
+  // Inserts one channel's block: `box` in level-0 voxel coordinates (inside the volume, non-empty),
+  // `data` its samples in the stored type (bytes_per_sample each, native byte order), x fastest,
+  // then y, then z. kInvalidArgument / kOutOfRange for a bad channel, box or data size; page
+  // cache errors (I/O, budget) are passed on — the tree then stays consistent but may lack part
+  // of the block (re-inserting it is safe).
+  Status Insert(int channel, const Box& box, std::span<const std::byte> data);
+
+  // The node with this key / id, or nullopt when it does not exist (not created, pruned, id free).
+  std::optional<NodeSnapshot> GetNode(const NodeKey& key) const;
+  std::optional<NodeSnapshot> GetNode(uint32_t id) const;
+  // Copies the stored brick (geometry().brick_bytes() bytes) of node `id`. kNotFound when the node
+  // does not exist or has no brick; kInvalidArgument when out.size() != brick_bytes. May wait for
+  // a page load (PageCache::Pin).
+  Status ReadBrick(uint32_t id, std::span<std::byte> out) const;
+
+  std::vector<NodeChange> DrainChanges() { return changes_.Drain(); }
+  OctreeStats stats() const;  // O(nodes): scans the node table.
+
+  // Writes every dirty brick page back and syncs the store (PageCache::Flush).
+  Status Flush();
+
+  // Persists the node table, statistics, completeness and free lists (not the bricks: they are
+  // on the page store; Flush() it too). Format: docs/octree_format.md, "Node table".
+  Status Save(std::ostream& out) const;
+  // Reads what Save wrote; bricks are read from `cache`'s store. Every count and index is
+  // validated (kCorrupt naming the problem) before use.
+  static Result<std::unique_ptr<Octree>> Load(std::istream& in, paging::PageCache* cache);
+
+  const BrickGeometry& geometry() const { return geometry_; }
+  uint32_t tolerance(int channel) const { return tolerance_[channel]; }
+  uint16_t background(int channel) const { return background_[channel]; }
+
+ private:
+  // Per-node record, 12 bytes (plus 16 bytes of ChannelStats per channel). Invariants for a
+  // live node: brick != 0 only for non-virtual nodes; child_group != 0 only for non-virtual nodes
+  // at level >= 1, and then group_parent_[child_group] == this id.
+  struct NodeRecord {
+    uint32_t child_group = 0;
+    uint32_t brick = 0;
+    uint8_t level = 0;
+    uint8_t flags = 0;  // kLive | kVirtual | kComplete.
+    uint16_t reserved = 0;
+  };
+  struct ChannelStats {
+    uint16_t min = 0, max = 0, sub_min = 0, sub_max = 0;
+    double avg = 0.0;
+  };
+  // Completeness of a leaf being written: per channel, which voxels were written. Dropped (and
+  // the node flagged kComplete) when every channel is complete.
+  struct LeafProgress {
+    uint64_t complete_channels = 0;  // Bit c: channel c complete.
+    std::vector<std::unique_ptr<WriteCoverage>> channels;
+  };
+  static constexpr uint8_t kLive = 1, kVirtual = 2, kComplete = 4;
+  static constexpr uint32_t kFreeGroup = 0xffffffffu;
+  static constexpr int kBrickStripes = 64;
+  struct Located {
+    uint32_t id;
+    bool exact;  // The node itself exists (else id is its deepest existing ancestor).
+  };
+
+  Octree(const BrickGeometry& geometry, paging::PageCache* cache, uint32_t bricks_per_page);
+  static Result<std::unique_ptr<Octree>> CreateImpl(const BrickGeometry& geometry,
+                                                    const OctreeOptions& options,
+                                                    paging::PageCache* cache);
+
+  // --- Node table (callers: the inserting thread, or readers under a shared lock). ---
+  Located Locate(const NodeKey& key) const;
+  NodeKey KeyOf(uint32_t id) const;
+  ChannelStats& Stat(uint32_t id, int c) { return stats_[static_cast<size_t>(id) * channels_ + c]; }
+  const ChannelStats& Stat(uint32_t id, int c) const {
+    return stats_[static_cast<size_t>(id) * channels_ + c];
+  }
+  uint16_t Uniform(uint32_t id, int c) const;
+  NodeSnapshot SnapshotLocked(uint32_t id) const;
+  bool IsLiveId(uint32_t id) const;
+
+  // --- Mutations (inserting thread only; they take mu_ exclusively themselves). ---
+  Result<uint32_t> EnsureNode(const NodeKey& key);
+  Status CreateChildren(uint32_t id);
+  Status AllocateBrick(uint32_t id, const NodeKey& key);
+  Status DropBrick(uint32_t id, const NodeKey& key);
+  Status DeleteChildren(uint32_t id, const NodeKey& key);
+  Status RefreshAprons(int level, const Box& region);
+
+  // --- Voxel access (inserting thread). Buffers are laid out over a box, x fastest. ---
+  Status ReadRepresentation(int level, const Box& box, int c, uint16_t* out) const;
+  Status WriteLevel(int level, const Box& box, int c, const std::vector<uint16_t>& values,
+                    std::vector<uint32_t>* touched);
+  void MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, int c);
+  Status UpdateNode(uint32_t id, int c);
+  Status PutRegion(uint32_t brick, const NodeKey& key, const Box& region, int c,
+                   const uint16_t* src, const Box& src_box);
+
+  std::mutex& BrickLock(uint32_t brick) const { return brick_locks_[brick % kBrickStripes]; }
+
+  BrickGeometry geometry_;
+  int channels_ = 1;
+  std::vector<uint32_t> tolerance_;
+  std::vector<uint16_t> background_;
+  paging::PageCache* cache_;
+  mutable BrickPool pool_;
+
+  mutable std::mutex insert_mu_;        // Serialises Insert (and Save's view of progress_).
+  mutable std::shared_mutex mu_;        // Guards the node table below.
+  std::vector<NodeRecord> nodes_;       // 8 per group; group 0 holds only the root (id 0).
+  std::vector<ChannelStats> stats_;     // nodes_.size() * channels_.
+  std::vector<uint32_t> group_parent_;  // Parent node id per group; kFreeGroup when free.
+  std::set<uint32_t> free_groups_;
+  std::unordered_map<uint32_t, LeafProgress> progress_;  // Guarded by insert_mu_.
+
+  mutable std::array<std::mutex, kBrickStripes> brick_locks_;
+  ChangeLog changes_;
+};
+
+}  // namespace octoscope::octree
+
+#endif  // OCTOSCOPE_OCTREE_OCTREE_H_

@@ -1,0 +1,119 @@
+// OctreeCache: an octree persisted in a cache directory, tied to the scan it was built from.
+// Files (specified in docs/octree_format.md, "Cache directory"):
+//   MANIFEST        what was built from what: format version, source identity, volume, brick
+//                   size, threshold, value maps, page size, node-table checksum; written LAST,
+//                   temp-then-rename with fsync. Its presence with "state complete" is the only
+//                   mark of a complete cache.
+//   octree.pool     the brick pool's pages (paging::FilePageStore).
+//   octree.nodes    the node table (Octree::Save), temp-then-rename with fsync.
+//   BUILDING        present while a build runs (diagnostics; its absence proves nothing).
+// A build killed at any moment (SIGKILL, power loss) leaves no complete MANIFEST, so the next
+// open detects an incomplete cache and starts over; a complete cache whose source identity and
+// build parameters match is reopened without rebuilding anything.
+//
+// Thread safety: an OctreeCache is used by one owning thread; the Octree it holds has its own
+// contract (octree.h).
+#ifndef OCTOSCOPE_OCTREE_OCTREE_CACHE_H_
+#define OCTOSCOPE_OCTREE_OCTREE_CACHE_H_
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "octree/octree.h"
+#include "paging/page_cache.h"
+#include "paging/page_store.h"
+#include "util/result.h"
+#include "volume/value_map.h"
+#include "volume/volume_info.h"
+
+namespace octoscope::octree {
+
+// What identifies a scan on disk: a hash over, for each of its files (the input file, or every
+// file below an input folder), the path relative to the input, the size, the modification time
+// and the first 64 KiB; and the total bytes of those files.
+struct SourceIdentity {
+  uint64_t hash = 0;
+  uint64_t file_bytes = 0;
+  bool operator==(const SourceIdentity&) const = default;
+};
+Result<SourceIdentity> ComputeSourceIdentity(const std::filesystem::path& input);
+
+// The build parameters a cache must match to be reused.
+struct CacheParams {
+  volume::VolumeInfo info;  // Size, channels, dtype, series, time.
+  Vec3 brick_size = kDefaultBrickSize;
+  double threshold = 0.05;
+};
+
+// What a build derives from the data itself (it may need a pass over every voxel): how file
+// values map to stored ones, and each channel's stored value range that the homogeneity threshold
+// is a fraction of. A reused cache keeps the mapping it was built with (same source, same data).
+struct ValueMapping {
+  std::vector<volume::ValueMap> value_maps;  // One per channel.
+  std::vector<uint32_t> value_range;         // One per channel, in stored units.
+};
+
+// The manifest's content (docs/octree_format.md). Parse is strict: unknown keys, missing keys,
+// malformed numbers and out-of-range values are kCorrupt.
+struct CacheManifest {
+  static constexpr int kVersion = 1;
+  SourceIdentity source;
+  CacheParams params;
+  ValueMapping mapping;
+  uint64_t page_bytes = 0;
+  uint64_t nodes_checksum = 0;  // FNV-1a 64 of octree.nodes.
+
+  std::string Serialize() const;
+  static Result<CacheManifest> Parse(std::string_view text);
+  // True when a cache built with this manifest serves `source` built with `params`.
+  bool Matches(const SourceIdentity& source, const CacheParams& params) const;
+};
+
+class OctreeCache {
+ public:
+  // Opens the cache in `dir` for `source` + `params` with a page cache of `ram_bytes`:
+  // a complete matching cache is loaded (reused() == true, nothing rebuilt, `derive` not called);
+  // anything else (no cache, an incomplete one, another source, other parameters) is cleared,
+  // `derive` computes the value mapping, and an empty octree is created for building
+  // (reused() == false). Never serves an incomplete cache.
+  static Result<std::unique_ptr<OctreeCache>> Open(
+      const std::filesystem::path& dir, const SourceIdentity& source, const CacheParams& params,
+      uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive);
+  ~OctreeCache();
+
+  bool reused() const { return reused_; }
+  // Why the cache was (re)built: "new", "incomplete (a build was interrupted)", "source changed",
+  // "parameters changed", "unreadable manifest: …"; "" when reused.
+  const std::string& rebuild_reason() const { return rebuild_reason_; }
+  Octree& octree() { return *octree_; }
+  const ValueMapping& mapping() const { return manifest_.mapping; }
+  paging::PageCache& page_cache() { return *page_cache_; }
+  const std::filesystem::path& dir() const { return dir_; }
+
+  // Makes a finished build durable and complete: flushes and fsyncs the pool, writes the node
+  // table, then the MANIFEST (both temp-then-rename + fsync, directory fsynced), removes BUILDING.
+  Status Commit();
+
+  // Bytes per page for a brick of `brick_bytes`: whole bricks, about 8 MiB (at least one brick).
+  static uint64_t PageBytesFor(uint64_t brick_bytes);
+
+ private:
+  OctreeCache() = default;
+
+  std::filesystem::path dir_;
+  bool reused_ = false;
+  std::string rebuild_reason_;
+  CacheManifest manifest_;
+  // Destruction order matters: the octree uses the page cache, which uses the store.
+  std::unique_ptr<paging::PageStore> store_;
+  std::unique_ptr<paging::PageCache> page_cache_;
+  std::unique_ptr<Octree> octree_;
+};
+
+}  // namespace octoscope::octree
+
+#endif  // OCTOSCOPE_OCTREE_OCTREE_CACHE_H_
