@@ -68,6 +68,8 @@ int RunDemo(std::span<const std::string> args) {
   flags.AddValue("seed", "S", "random seed", "42");
   flags.AddValue("compression", "C", "none, deflate, zstd or lzw", "deflate");
   flags.AddValue("name", "NAME", "file name without .ome.tif", "demo-embryo");
+  flags.AddValue("embryo-percent", "P",
+                 "how much of the box the embryo spans per axis, 1..100 (small: a sparse scan)", "92");
   flags.AddValue("stats-json", "FILE",
                  "also write `info --json --stats` of the generated voxels (computed from the\n"
                  "                            generator, not the file: a reference for tests and benchmarks)");
@@ -91,6 +93,9 @@ int RunDemo(std::span<const std::string> args) {
   Result<int64_t> seed = flags.GetInt("seed", 42, 0, INT64_MAX);
   if (!seed.ok()) return UsageError(seed.status().message(), flags);
   embryo_options.seed = static_cast<uint64_t>(*seed);
+  Result<int64_t> percent = flags.GetInt("embryo-percent", 92, 1, 100);
+  if (!percent.ok()) return UsageError(percent.status().message(), flags);
+  embryo_options.embryo_percent = static_cast<int>(*percent);
   io::OmeTiffWriteOptions write_options;
   const std::string compression_name = flags.Get("compression").value_or("deflate");
   std::optional<io::TiffCompression> compression = io::TiffCompressionFromName(compression_name);

@@ -19,6 +19,8 @@ struct Command {
 constexpr Command kCommands[] = {
     {"info", "print a volume's metadata (and with --stats, per-channel min/max/mean)",
      octoscope::app::RunInfo},
+    {"build", "build (or reuse) the multi-resolution octree of a scan in a cache directory",
+     octoscope::app::RunBuild},
     {"demo", "write the built-in demo specimen (a synthetic fluorescent embryo) as OME-TIFF",
      octoscope::app::RunDemo},
 };

@@ -161,6 +161,10 @@ Result<std::unique_ptr<SyntheticEmbryo>> SyntheticEmbryo::Create(
     return InvalidArgumentError("synthetic embryo: " + std::to_string(options.channels) +
                                 " channels, must be 1.." + std::to_string(kMaxChannels));
   }
+  if (options.embryo_percent < 1 || options.embryo_percent > 100) {
+    return InvalidArgumentError("synthetic embryo: embryo_percent " +
+                                std::to_string(options.embryo_percent) + " is outside 1..100");
+  }
   std::unique_ptr<SyntheticEmbryo> embryo(new SyntheticEmbryo());
   embryo->Build(options);
   OCTO_RETURN_IF_ERROR(embryo->info_.Validate());
@@ -178,11 +182,11 @@ void SyntheticEmbryo::Build(const SyntheticEmbryoOptions& options) {
     info_.channels.push_back(volume::ChannelInfo{kChannelNames[c], kChannelColors[c]});
   }
 
-  // The embryo: an ellipsoid filling 92% of the box along each axis.
+  // The embryo: an ellipsoid spanning embryo_percent of the box along each axis.
   int64_t min_semi = 0;
   for (int a = 0; a < 3; ++a) {
     centre_[a] = size_[a] * kSub / 2;
-    semi_axis_[a] = std::max<int64_t>(kSub / 2, size_[a] * kSub * 46 / 100);
+    semi_axis_[a] = std::max<int64_t>(kSub / 2, size_[a] * kSub * options.embryo_percent / 200);
     // A one-voxel axis never moves a voxel off the centre plane, so it does not bound distances.
     if (size_[a] > 1) min_semi = min_semi ? std::min(min_semi, semi_axis_[a]) : semi_axis_[a];
     unit_coord_[a].resize(size_[a]);

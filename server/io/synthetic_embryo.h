@@ -42,6 +42,9 @@ struct SyntheticEmbryoOptions {
   uint64_t seed = 42;
   // Voxel pitch in micrometres; light-sheet stacks are typically coarser along z.
   std::array<double, 3> spacing_um{0.4, 0.4, 2.0};
+  // How much of the box the embryo spans along each axis, in percent (1..100). Small values give
+  // a sparse scan: mostly empty background, like a few labelled cells in a large field.
+  int embryo_percent = 92;
 };
 
 class SyntheticEmbryo final : public VolumeSource {

@@ -22,9 +22,11 @@ struct RunResult {
 };
 
 // Runs the octoscope binary with `args` (shell-quoted by the caller), capturing both streams.
-inline RunResult RunOctoscope(const std::string& args) {
-  fs::path err_file = fs::temp_directory_path() / ("octoscope-info-test-" + std::to_string(getpid()));
-  std::string command = std::string(OCTOSCOPE_BINARY) + " " + args + " 2>" + err_file.string();
+// `env` ("NAME=value ") is put before the command. Exit code -1 when killed by a signal.
+inline RunResult RunOctoscope(const std::string& args, const std::string& env = "") {
+  fs::path err_file = fs::temp_directory_path() / ("octoscope-test-stderr-" + std::to_string(getpid()));
+  std::string command = env;
+  command.append(OCTOSCOPE_BINARY).append(" ").append(args).append(" 2>").append(err_file.string());
   RunResult result;
   FILE* pipe = popen(command.c_str(), "r");
   if (!pipe) return result;

@@ -297,5 +297,30 @@ TEST_F(SyntheticEmbryoLooksTest, MembranesAreThin) {
   EXPECT_LT(static_cast<double>(run_voxels) / runs, 4.0);
 }
 
+TEST(SyntheticEmbryoTest, SmallEmbryoLeavesMostOfTheBoxBackground) {
+  SyntheticEmbryoOptions options;
+  options.size = {64, 64, 32};
+  options.channels = 1;
+  options.embryo_percent = 30;
+  auto embryo = SyntheticEmbryo::Create(options);
+  ASSERT_TRUE(embryo.ok());
+  std::vector<uint16_t> slab(64 * 64 * 32);
+  ASSERT_TRUE((*embryo)->ReadSlab(0, 0, 32, std::as_writable_bytes(std::span(slab))).ok());
+  // Outside the central 30 % (plus the blur), everything is camera background.
+  size_t bright_outside = 0, outside = 0;
+  for (int z = 0; z < 32; ++z)
+    for (int y = 0; y < 64; ++y)
+      for (int x = 0; x < 64; ++x) {
+        const double dx = (x + 0.5) / 64 - 0.5, dy = (y + 0.5) / 64 - 0.5, dz = (z + 0.5) / 32 - 0.5;
+        if (dx * dx + dy * dy + dz * dz < 0.25 * 0.25) continue;
+        ++outside;
+        if (slab[(static_cast<size_t>(z) * 64 + y) * 64 + x] > 250) ++bright_outside;
+      }
+  EXPECT_GT(outside, slab.size() / 2);
+  EXPECT_EQ(bright_outside, 0u);
+  options.embryo_percent = 0;
+  EXPECT_FALSE(SyntheticEmbryo::Create(options).ok());
+}
+
 }  // namespace
 }  // namespace octoscope::io

@@ -1,0 +1,216 @@
+// `octoscope build INPUT --cache DIR`: builds (or reuses) the octree of a scan in a cache directory.
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <csignal>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "app/commands.h"
+#include "app/volume_options.h"
+#include "io/open_volume.h"
+#include "io/volume_stats.h"
+#include "octree/octree_builder.h"
+#include "octree/octree_cache.h"
+#include "protocol/build_report.h"
+#include "util/progress.h"
+#include "util/strings.h"
+
+namespace octoscope::app {
+namespace {
+
+constexpr const char* kCommand = "octoscope build";
+
+int Fail(const std::string& input, const Status& status) {
+  const bool names_file =
+      status.message().find(std::filesystem::path(input).filename().string()) != std::string::npos;
+  std::string line = names_file ? status.ToString() : status.WithContext(input).ToString();
+  std::replace(line.begin(), line.end(), '\n', ' ');
+  std::fprintf(stderr, "%s: %s\n", kCommand, line.c_str());
+  return kExitBadInput;
+}
+
+int Usage(const std::string& message, const Flags& flags) {
+  std::fprintf(stderr, "%s: %s\n\n%s", kCommand, message.c_str(), flags.Help().c_str());
+  return kExitUsage;
+}
+
+double PeakRssMb() {
+  struct rusage usage;
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux.
+}
+
+// A quarter of the machine's memory, at most 4 GiB: a sensible budget on a shared lab machine.
+int64_t DefaultRamMb() {
+  const int64_t pages = sysconf(_SC_PHYS_PAGES), page_size = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page_size <= 0) return 1024;
+  return std::clamp<int64_t>(pages * page_size / 4 / (1 << 20), 256, 4096);
+}
+
+Result<octree::Vec3> ParseBrick(const std::string& text) {
+  auto parts = Split(text, ',');
+  if (parts.size() != 1 && parts.size() != 3) return InvalidArgumentError("--brick: N or X,Y,Z");
+  octree::Vec3 brick{};
+  for (int a = 0; a < 3; ++a) {
+    auto v = ParseInt64(parts[parts.size() == 1 ? 0 : a]);
+    if (!v || *v < 2 || *v > octree::kMaxBrickAxis || *v % 2 != 0) {
+      return InvalidArgumentError("--brick: each size must be an even number in 2.." +
+                                  std::to_string(octree::kMaxBrickAxis));
+    }
+    brick[a] = *v;
+  }
+  return brick;
+}
+
+// The value mapping a build needs: for 8/16-bit data the fixed maps, plus (when the threshold is
+// a fraction of the data's range, or the type is wider) one statistics pass over the data.
+Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold) {
+  const volume::VolumeInfo& info = source.info();
+  octree::ValueMapping mapping;
+  const bool narrow = volume::BytesPerSample(info.dtype) <= 2;
+  std::optional<io::VolumeStats> stats;
+  if (!narrow || threshold > 0) {
+    ProgressBar bar(stderr, "planes (value range)",
+                    static_cast<uint64_t>(info.size[2]) * info.channel_count(),
+                    static_cast<double>(source.SlabBytes(1)));
+    io::StatsOptions options;
+    options.progress = [&bar](uint64_t done, uint64_t) { bar.Update(done); };
+    auto computed = io::ComputeVolumeStats(source, options);
+    bar.Finish();
+    if (!computed.ok()) return computed.status();
+    stats = std::move(*computed);
+  }
+  for (int c = 0; c < info.channel_count(); ++c) {
+    volume::ValueMap map = volume::FixedValueMap(info.dtype == volume::DataType::kUint8 ||
+                                                         info.dtype == volume::DataType::kInt8 ||
+                                                         narrow
+                                                     ? info.dtype
+                                                     : volume::DataType::kUint16);
+    if (!narrow) {
+      const io::ChannelStats& s = stats->channels[c];
+      const double lo = s.count ? s.min : 0, hi = s.count ? s.max : 0;
+      OCTO_ASSIGN_OR_RETURN(map, volume::ValueMapForRange(info.dtype, lo, hi));
+    }
+    uint32_t range = static_cast<uint32_t>(volume::TypeMax(map.stored_type));
+    if (stats && stats->channels[c].count > 0) {
+      // The channel's data range in stored units: what "5 % of the range" means.
+      range = static_cast<uint32_t>(map.ToStored(stats->channels[c].max) -
+                                    map.ToStored(stats->channels[c].min));
+    }
+    mapping.value_maps.push_back(map);
+    mapping.value_range.push_back(range);
+  }
+  return mapping;
+}
+
+// Test hook (tests/app/build_command_test.cpp): OCTOSCOPE_TEST_KILL_AFTER_PLANES=N makes the
+// process SIGKILL itself after N planes were inserted, a deterministic crash point.
+int64_t TestKillAfterPlanes() {
+  const char* text = std::getenv("OCTOSCOPE_TEST_KILL_AFTER_PLANES");
+  if (!text) return -1;
+  return ParseInt64(text).value_or(-1);
+}
+
+}  // namespace
+
+int RunBuild(std::span<const std::string> args) {
+  const auto start = std::chrono::steady_clock::now();
+  Flags flags("octoscope build INPUT --cache DIR [options]",
+              "Builds the multi-resolution octree of INPUT (any format of 'octoscope info') into the\n"
+              "cache directory DIR, slab by slab, within a RAM budget; reuses DIR when it already\n"
+              "holds a complete octree of the same scan built with the same parameters. Prints one\n"
+              "JSON line at the end (fields in docs/cli.md).");
+  flags.SetPositionals("INPUT", 1, 1);
+  flags.AddValue("cache", "DIR", "cache directory (created if missing)");
+  flags.AddValue("brick", "N|X,Y,Z", "brick size in voxels, even", "64");
+  flags.AddValue("threshold", "F",
+                 "homogeneity threshold, a fraction of each channel's value range (0: only exactly\n"
+                 "                            constant bricks are pruned)",
+                 "0.05");
+  flags.AddValue("ram-mb", "N", "RAM budget in MiB for pages and slabs", "a quarter of RAM, <= 4096");
+  flags.AddValue("threads", "N", "reader threads", "one per channel, at least 2");
+  AddVolumeFlags(flags);
+  if (Status s = flags.Parse(args); !s.ok()) return Usage(s.message(), flags);
+  if (flags.help_requested()) {
+    std::printf("%s", flags.Help().c_str());
+    return kExitOk;
+  }
+  auto cache_dir = flags.Get("cache");
+  if (!cache_dir || cache_dir->empty()) return Usage("--cache DIR is required", flags);
+  octree::Vec3 brick = octree::kDefaultBrickSize;
+  if (auto text = flags.Get("brick")) {
+    auto parsed = ParseBrick(*text);
+    if (!parsed.ok()) return Usage(parsed.status().message(), flags);
+    brick = *parsed;
+  }
+  auto threshold = flags.GetDouble("threshold", 0.05);
+  if (!threshold.ok()) return Usage(threshold.status().message(), flags);
+  if (!(*threshold >= 0 && *threshold <= 1)) return Usage("--threshold must be in [0, 1]", flags);
+  auto ram_mb = flags.GetInt("ram-mb", DefaultRamMb(), 64, int64_t{1} << 22);
+  if (!ram_mb.ok()) return Usage(ram_mb.status().message(), flags);
+  auto threads = flags.GetInt("threads", 0, 0, 256);
+  if (!threads.ok()) return Usage(threads.status().message(), flags);
+  auto options = VolumeOptionsFromFlags(flags);
+  if (!options.ok()) return Usage(options.status().message(), flags);
+
+  const std::string& input = flags.positionals()[0];
+  auto source = io::OpenVolume(input, *options);
+  if (!source.ok()) return Fail(input, source.status());
+  const volume::VolumeInfo& info = (*source)->info();
+  auto identity = octree::ComputeSourceIdentity(input);
+  if (!identity.ok()) return Fail(input, identity.status());
+
+  // The budget: 1/8 for slabs being read (file type) and 1/8 for their converted copies, the
+  // rest for brick pages (docs/cli.md).
+  const uint64_t ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
+  const uint64_t slab_budget = ram_bytes / 8;
+  const uint64_t page_budget = ram_bytes - 2 * slab_budget;
+
+  octree::CacheParams params;
+  params.info = info;
+  params.brick_size = brick;
+  params.threshold = *threshold;
+  auto cache = octree::OctreeCache::Open(*cache_dir, *identity, params, page_budget,
+                                         [&] { return DeriveMapping(**source, *threshold); });
+  if (!cache.ok()) return Fail(input, cache.status());
+
+  if (!(*cache)->reused()) {
+    const int64_t kill_after = TestKillAfterPlanes();
+    ProgressBar bar(stderr, "planes", static_cast<uint64_t>(info.size[2]) * info.channel_count(),
+                    static_cast<double>((*source)->SlabBytes(1)));
+    octree::BuildOptions build_options;
+    build_options.threads = static_cast<int>(*threads);
+    build_options.slab_budget_bytes = slab_budget;
+    build_options.progress = [&](const octree::BuildProgress& p) {
+      bar.Update(p.planes_done);
+      if (kill_after >= 0 && p.planes_done >= static_cast<uint64_t>(kill_after)) raise(SIGKILL);
+    };
+    Status built = octree::BuildOctree(**source, (*cache)->mapping().value_maps,
+                                       (*cache)->octree(), build_options);
+    bar.Finish();
+    if (!built.ok()) return Fail(input, built);
+    if (kill_after == static_cast<int64_t>(info.size[2]) * info.channel_count() + 1) raise(SIGKILL);
+    if (Status s = (*cache)->Commit(); !s.ok()) return Fail(*cache_dir, s);
+  }
+
+  protocol::BuildReport report;
+  report.stats = (*cache)->octree().stats();
+  report.input_bytes = info.VoxelBytes();
+  report.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  report.mb_per_s = report.seconds > 0 ? report.input_bytes / report.seconds / 1e6 : 0;
+  report.peak_rss_mb = PeakRssMb();
+  report.ram_budget_mb = static_cast<double>(*ram_mb);
+  report.reused = (*cache)->reused();
+  report.rebuild_reason = (*cache)->rebuild_reason();
+  report.levels = (*cache)->octree().geometry().level_count();
+  report.cache_dir = *cache_dir;
+  std::printf("%s\n", protocol::BuildReportJson(report).c_str());
+  return kExitOk;
+}
+
+}  // namespace octoscope::app
