@@ -150,7 +150,7 @@ int RunBuild(std::span<const std::string> args) {
   auto threshold = flags.GetDouble("threshold", 0.05);
   if (!threshold.ok()) return Usage(threshold.status().message(), flags);
   if (!(*threshold >= 0 && *threshold <= 1)) return Usage("--threshold must be in [0, 1]", flags);
-  auto ram_mb = flags.GetInt("ram-mb", DefaultRamMb(), 64, int64_t{1} << 22);
+  auto ram_mb = flags.GetInt("ram-mb", DefaultRamMb(), 16, int64_t{1} << 22);
   if (!ram_mb.ok()) return Usage(ram_mb.status().message(), flags);
   auto threads = flags.GetInt("threads", 0, 0, 256);
   if (!threads.ok()) return Usage(threads.status().message(), flags);

@@ -231,7 +231,9 @@ bool CacheManifest::Matches(const SourceIdentity& src, const CacheParams& p) con
 }
 
 uint64_t OctreeCache::PageBytesFor(uint64_t brick_bytes) {
-  constexpr uint64_t kTargetPageBytes = 8 << 20;
+  // Small pages (about 1 MiB: one to a few bricks) keep even modest RAM budgets many pages deep;
+  // the page size is part of the pool's layout, so it must not depend on the budget.
+  constexpr uint64_t kTargetPageBytes = 1 << 20;
   return brick_bytes * std::max<uint64_t>(1, kTargetPageBytes / brick_bytes);
 }
 
@@ -265,6 +267,14 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(const fs::path& dir,
                                                params.brick_size, params.info.channel_count(),
                                                options.bytes_per_sample}));
   const uint64_t page_bytes = PageBytesFor(geometry.brick_bytes());
+  // Construction pins a few pages at once (a brick and its neighbours' aprons): a budget of fewer
+  // pages could wait forever, so refuse it up front.
+  if (ram_bytes < kMinPages * page_bytes) {
+    return ResourceExhaustedError(
+        "a RAM budget of " + std::to_string(ram_bytes >> 20) + " MiB for brick pages holds fewer than " +
+        std::to_string(kMinPages) + " pages of " + std::to_string(page_bytes >> 10) +
+        " KiB; give more RAM (--ram-mb) or use smaller bricks (--brick)");
+  }
 
   // 1. A complete, matching cache is reused as it is.
   const fs::path manifest_path = dir / kManifestName;

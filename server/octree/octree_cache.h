@@ -98,8 +98,10 @@ class OctreeCache {
   // table, then the MANIFEST (both temp-then-rename + fsync, directory fsynced), removes BUILDING.
   Status Commit();
 
-  // Bytes per page for a brick of `brick_bytes`: whole bricks, about 8 MiB (at least one brick).
+  // Bytes per page for a brick of `brick_bytes`: whole bricks, about 1 MiB (at least one brick).
   static uint64_t PageBytesFor(uint64_t brick_bytes);
+  // The fewest pages a page-cache budget must hold (Open refuses smaller budgets).
+  static constexpr uint64_t kMinPages = 8;
 
  private:
   OctreeCache() = default;
