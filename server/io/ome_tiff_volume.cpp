@@ -22,6 +22,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// Most files one source keeps open for MappedPlane views (beyond the cache's kMaxOpenOmeTiffFiles):
+// each holds a descriptor. Planes of further files are not offered as views (callers copy them).
+constexpr size_t kMaxPinnedFiles = 64;
+
 // Planes (z, c, t) one series may declare: bounds the work of walking TiffData at open (a few
 // seconds at worst). Real series have at most millions of planes.
 constexpr uint64_t kMaxPlanesPerSeries = uint64_t{1} << 28;
@@ -111,7 +115,8 @@ class OmeTiffVolume final : public VolumeSource {
         files_(std::move(files)),
         planes_(std::move(planes)),
         channel_map_(std::move(channel_map)),
-        cache_(std::move(cache)) {}
+        cache_(std::move(cache)),
+        pinned_(files_.size()) {}
 
   const volume::VolumeInfo& info() const override { return info_; }
 
@@ -143,6 +148,48 @@ class OmeTiffVolume final : public VolumeSource {
     return Status::Ok();
   }
 
+  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+    if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
+      return std::nullopt;
+    }
+    const auto [group, sample] = channel_map_[channel];
+    const PlaneRef& ref = planes_[static_cast<size_t>(group) * info_.size[2] + z];
+    const size_t plane_bytes = info_.PlaneVoxels() * volume::BytesPerSample(info_.dtype);
+    std::shared_ptr<TiffFile> file;
+    {
+      std::lock_guard lock(pinned_mutex_);
+      file = pinned_[ref.file];
+    }
+    const bool pinned = file != nullptr;
+    if (!pinned) {
+      Result<std::shared_ptr<TiffFile>> opened = cache_->Get(files_[ref.file]);
+      if (!opened.ok()) return std::nullopt;
+      file = *std::move(opened);
+    }
+    // As in ReadSlab: a reopened file must still match the OME-XML.
+    if (ref.ifd >= file->ifd_count() || file->ifd(ref.ifd).dtype != info_.dtype) {
+      return std::nullopt;
+    }
+    std::optional<std::span<const std::byte>> view = file->MappedPlane(ref.ifd, sample);
+    if (!view || view->size() != plane_bytes) return std::nullopt;
+    if (!pinned) {
+      // The cache may close `file` at any time; the view must live as long as this source, so the
+      // file is kept open here. Another thread may have pinned a handle of the same file
+      // meanwhile: then that one serves the view.
+      std::lock_guard lock(pinned_mutex_);
+      std::shared_ptr<TiffFile>& slot = pinned_[ref.file];
+      if (slot == nullptr) {
+        if (pinned_count_ >= kMaxPinnedFiles) return std::nullopt;
+        slot = file;
+        ++pinned_count_;
+      } else if (slot != file) {
+        view = slot->MappedPlane(ref.ifd, sample);
+        if (!view || view->size() != plane_bytes) return std::nullopt;
+      }
+    }
+    return view;
+  }
+
  private:
   const std::string name_;
   const volume::VolumeInfo info_;
@@ -152,6 +199,11 @@ class OmeTiffVolume final : public VolumeSource {
   // channel -> (group, sample within the group's pages).
   const std::vector<std::pair<int, int>> channel_map_;
   const std::shared_ptr<TiffFileCache> cache_;
+  // Files that served a MappedPlane view, by index into files_, kept open (and mapped) for the
+  // source's lifetime; at most kMaxPinnedFiles of them.
+  mutable std::mutex pinned_mutex_;
+  mutable std::vector<std::shared_ptr<TiffFile>> pinned_;  // GUARDED_BY(pinned_mutex_)
+  mutable size_t pinned_count_ = 0;                        // GUARDED_BY(pinned_mutex_)
 };
 
 // ----------------------------------------------------------------------------------------------

@@ -45,11 +45,13 @@ class Fd {
 class RawVolume final : public VolumeSource {
  public:
   // REQUIRES: `info` validated; the file holds header_bytes + info.VoxelBytes() bytes.
+  // `file_size`: the size checked at open (>= header + voxel bytes).
   RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::unique_ptr<Fd> fd,
-            const RawLayout& layout)
+            uint64_t file_size, const RawLayout& layout)
       : info_(std::move(info)),
         path_(std::move(path)),
         fd_(std::move(fd)),
+        mapping_(fd_->get(), file_size),
         header_bytes_(layout.header_bytes),
         interleaved_(layout.interleaved && layout.channels > 1),
         swap_(layout.big_endian != (std::endian::native == std::endian::big)) {}
@@ -71,6 +73,21 @@ class RawVolume final : public VolumeSource {
     }
     if (swap_) SwapBytesInPlace(out, bps);
     return Status::Ok();
+  }
+
+  // Planar files in native byte order store each plane as one run of the file: offered in place.
+  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+    if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
+      return std::nullopt;
+    }
+    const uint64_t bps = volume::BytesPerSample(info_.dtype);
+    if (interleaved_ || (swap_ && bps > 1)) return std::nullopt;
+    const uint64_t plane_voxels = info_.PlaneVoxels();
+    const uint64_t voxel = (static_cast<uint64_t>(channel) * info_.size[2] + z) * plane_voxels;
+    const uint64_t at = header_bytes_ + voxel * bps;  // Inside the file: checked at open.
+    // The samples are read in place, so they must be aligned (a header of odd size is not).
+    if (at % bps != 0) return std::nullopt;
+    return mapping_.View(at, plane_voxels * bps);
   }
 
  private:
@@ -105,6 +122,7 @@ class RawVolume final : public VolumeSource {
   const volume::VolumeInfo info_;
   const std::filesystem::path path_;
   const std::unique_ptr<Fd> fd_;
+  const LazyFileMapping mapping_;  // Of the file size checked at open; needs fd_ until mapped.
   const uint64_t header_bytes_;
   const bool interleaved_;
   const bool swap_;
@@ -191,7 +209,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
   ApplySpacingOverrides(info, options);
   if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
   return std::unique_ptr<VolumeSource>(
-      new RawVolume(std::move(info), layout.data_file, std::move(fd), layout));
+      new RawVolume(std::move(info), layout.data_file, std::move(fd), file_size, layout));
 }
 
 }  // namespace octoscope::io

@@ -13,9 +13,11 @@
 #include <cstring>
 #include <string_view>
 #include <system_error>
+#include <unordered_map>
 #include <unordered_set>
 #include <utility>
 
+#include "io/volume_source.h"
 #include "util/byte_swap.h"
 #include "util/checked_math.h"
 #include "util/file_reading.h"
@@ -188,6 +190,11 @@ struct TiffFile::Impl {
   // Scratch for one decoded strip or tile when it cannot be decoded straight into the caller's
   // buffer; freed after a read when large, so an idle file holds little memory.
   std::vector<std::byte> scratch;
+  // The read-only mapping behind MappedPlane / MappedBytes (thread-safe on its own; set at Open).
+  std::unique_ptr<LazyFileMapping> mapping;
+  // MappedPlane's answers, keyed by IFD index << 16 | sample: the plane's file offset, or nullopt
+  // when it cannot be mapped. Strip tables never change, so each page is examined once.
+  std::unordered_map<uint64_t, std::optional<uint64_t>> mapped_offsets;
 
   ~Impl() {
     if (tif != nullptr) {
@@ -208,6 +215,10 @@ struct TiffFile::Impl {
   Status DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip, uint64_t strips,
                       uint64_t first);
   Status ReadTiles(const PlaneJob& job);
+  // The file offset of sample `sample` of IFD `index` when its strips hold exactly the decoded
+  // plane, contiguous in strip order (see TiffFile::MappedPlane); nullopt otherwise.
+  std::optional<uint64_t> ContiguousPlaneOffset(const std::string& name, int index,
+                                                const TiffIfd& ifd, int sample, uint64_t file_size);
 };
 
 namespace {
@@ -443,6 +454,9 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
   impl.current_ifd = -1;
   impl.max_block_bytes = limits.max_plane_bytes;
   impl.sink.Clear();
+  // The descriptor stays open as long as the TiffFile (libtiff owns it), so mapping can wait for
+  // the first MappedPlane; only the size validated here is ever mapped.
+  impl.mapping = std::make_unique<LazyFileMapping>(impl.fd, file->file_size_);
   return file;
 }
 
@@ -760,6 +774,88 @@ Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
     if (!result.ok()) impl.current_ifd = -1;
   }
   return result;
+}
+
+std::optional<uint64_t> TiffFile::Impl::ContiguousPlaneOffset(const std::string& name, int index,
+                                                              const TiffIfd& ifd, int sample,
+                                                              uint64_t file_size) {
+  sink.Clear();
+  if (!SelectIfd(name, index, ifd).ok()) {
+    current_ifd = -1;
+    return std::nullopt;
+  }
+  uint32_t depth = 1;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_IMAGEDEPTH, &depth);
+  uint16_t fill_order = FILLORDER_MSB2LSB;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_FILLORDER, &fill_order);
+  if (depth > 1 || fill_order != FILLORDER_MSB2LSB) return std::nullopt;
+  // The strip arithmetic of ReadStrips (64 bits; RowsPerStrip 0 or > height: one strip).
+  uint32_t rows_per_strip_tag = 0;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip_tag);
+  const uint64_t height = ifd.height;
+  const uint64_t rows_per_strip =
+      (rows_per_strip_tag == 0 || rows_per_strip_tag > height) ? height : rows_per_strip_tag;
+  const uint64_t strips_per_plane = (height + rows_per_strip - 1) / rows_per_strip;
+  const uint64_t sample_planes =
+      ifd.planar_config == PLANARCONFIG_SEPARATE ? ifd.samples_per_pixel : 1;
+  if (strips_per_plane * sample_planes != TIFFNumberOfStrips(tif)) return std::nullopt;
+  const uint64_t bytes = volume::BytesPerSample(*ifd.dtype);
+  const uint64_t row_bytes = uint64_t{ifd.width} * bytes;
+  const uint64_t first = static_cast<uint64_t>(sample) * strips_per_plane;
+  uint64_t start = 0;
+  for (uint64_t s = 0; s < strips_per_plane; ++s) {
+    const uint32_t strip = static_cast<uint32_t>(first + s);  // < TIFFNumberOfStrips.
+    const uint64_t y0 = s * rows_per_strip;
+    const uint64_t want = std::min(rows_per_strip, height - y0) * row_bytes;
+    int err = 0;
+    const uint64_t offset = TIFFGetStrileOffsetWithErr(tif, strip, &err);
+    const uint64_t count = err ? 0 : TIFFGetStrileByteCountWithErr(tif, strip, &err);
+    // A sparse (0, 0) strip reads as zeros, a short one is an error for ReadPlane: not mappable.
+    if (err || count < want || offset == 0) return std::nullopt;
+    if (s == 0) {
+      start = offset;
+    } else if (offset != start + y0 * row_bytes) {  // A gap, or strips out of order.
+      return std::nullopt;
+    }
+  }
+  const uint64_t plane_bytes = height * row_bytes;  // Checked at Open.
+  if (start > file_size || plane_bytes > file_size - start) return std::nullopt;
+  // The view is read as an array of samples: it must be aligned for them (the mapping is).
+  if (start % bytes != 0) return std::nullopt;
+  return start;
+}
+
+std::optional<std::span<const std::byte>> TiffFile::MappedPlane(int index, int sample) {
+  if (index < 0 || index >= ifd_count()) return std::nullopt;
+  const TiffIfd& ifd = ifds_[index];
+  if (!ifd.dtype || sample < 0 || sample >= ifd.samples_per_pixel) return std::nullopt;
+  if (ifd.compression != COMPRESSION_NONE || ifd.tiled) return std::nullopt;
+  // Chunky pixels interleave the samples: one sample's plane is not a run of the file.
+  if (ifd.samples_per_pixel > 1 && ifd.planar_config != PLANARCONFIG_SEPARATE) return std::nullopt;
+  const uint64_t bytes = volume::BytesPerSample(*ifd.dtype);
+  if (ifd.bits_per_sample != bytes * 8) return std::nullopt;
+  if (bytes > 1 && big_endian_ != (std::endian::native == std::endian::big)) return std::nullopt;
+  const uint64_t key = (static_cast<uint64_t>(index) << 16) | static_cast<uint64_t>(sample);
+  std::optional<uint64_t> offset;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Impl& impl = *impl_;
+    auto it = impl.mapped_offsets.find(key);
+    if (it == impl.mapped_offsets.end()) {
+      it = impl.mapped_offsets
+               .emplace(key,
+                        impl.ContiguousPlaneOffset(path_.string(), index, ifd, sample, file_size_))
+               .first;
+    }
+    offset = it->second;
+  }
+  if (!offset) return std::nullopt;
+  return impl_->mapping->View(*offset, uint64_t{ifd.width} * ifd.height * bytes);
+}
+
+std::optional<std::span<const std::byte>> TiffFile::MappedBytes(uint64_t offset,
+                                                                uint64_t length) const {
+  return impl_->mapping->View(offset, length);
 }
 
 Result<std::string> TiffFile::Description(int index, size_t max_bytes) {

@@ -9,6 +9,9 @@
 // decoded strip or tile, which chunky pixels decode with all their samples, must each fit
 // Limits::max_plane_bytes); IFD loops are refused.
 //
+// Planes stored exactly as decoded (uncompressed, native byte order, contiguous strips) can also
+// be viewed in place, in a read-only mapping of the file made on first use (MappedPlane).
+//
 // Thread safety: thread-safe. Decoding calls are serialized by an internal mutex (a libtiff
 // handle is not reentrant); the index is immutable after Open.
 #ifndef OCTOSCOPE_IO_TIFF_FILE_H_
@@ -99,6 +102,23 @@ class TiffFile {
   // it); an Unsupported error otherwise. Lets readers address data that no IFD describes (ImageJ
   // files > 4 GB keep one IFD and store the further images right after the first).
   Result<uint64_t> ContiguousDataOffset(int index);
+
+  // A zero-copy view of sample `sample` of IFD `index`: the width*height samples ReadPlane would
+  // decode, in place in a read-only mapping of the file (mapped once, on the first call; unmapped
+  // when this TiffFile is destroyed, so the view is valid while it lives). Offered only when the
+  // file's bytes are exactly the decoded samples: uncompressed strips (not tiles) of one sample
+  // per pixel, or planar (separate) samples; whole-byte samples of the IFD's dtype in native byte
+  // order (bit fill order MSB first); the plane's strips contiguous in strip order with no gap or
+  // sparse strip; the whole plane inside the file (as sized at Open) and aligned for its sample
+  // type. nullopt otherwise, and for invalid arguments: callers then use ReadPlane.
+  // Caveat: if another process truncates the file while it is mapped, touching the lost pages
+  // raises SIGBUS (the view cannot report an error). We map only the size validated at Open.
+  std::optional<std::span<const std::byte>> MappedPlane(int index, int sample = 0);
+
+  // A zero-copy view of the raw bytes [offset, offset + length) of the file (file byte order),
+  // in the same mapping as MappedPlane; nullopt when the range is not inside the file (as sized at
+  // Open) or the file cannot be mapped. Same validity and caveat as MappedPlane.
+  std::optional<std::span<const std::byte>> MappedBytes(uint64_t offset, uint64_t length) const;
 
   // Reads out.size() raw bytes at `offset` (file byte order). Errors when the range does not lie
   // inside the file. Thread-safe without taking the decoding lock (positioned reads).

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -74,6 +75,29 @@ class TiffStackSource : public VolumeSource {
       }
     }
     return Status::Ok();
+  }
+
+  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+    if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
+      return std::nullopt;
+    }
+    const int64_t id =
+        samples_are_channels_ ? planes_[z] : planes_[z * info_.channel_count() + channel];
+    const size_t bytes = volume::BytesPerSample(info_.dtype);
+    const uint64_t plane_bytes = info_.PlaneVoxels() * bytes;
+    if (data_offset_) {
+      // ImageJ > 4 GB: the images are raw runs of the file, in the file's byte order.
+      const uint64_t at = *data_offset_ + static_cast<uint64_t>(id) * plane_bytes;
+      if (bytes > 1 && file_->big_endian() != (std::endian::native == std::endian::big)) {
+        return std::nullopt;
+      }
+      if (at % bytes != 0) return std::nullopt;  // Samples must be aligned to be read in place.
+      return file_->MappedBytes(at, plane_bytes);
+    }
+    std::optional<std::span<const std::byte>> view =
+        file_->MappedPlane(static_cast<int>(id), samples_are_channels_ ? channel : 0);
+    if (!view || view->size() != plane_bytes) return std::nullopt;
+    return view;
   }
 
  private:

@@ -1,8 +1,7 @@
 #include "io/volume_stats.h"
 
-#include "util/target_clones.h"
-
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
@@ -11,6 +10,9 @@
 #include <optional>
 #include <thread>
 #include <type_traits>
+#include <vector>
+
+#include "util/target_clones.h"
 
 namespace octoscope::io {
 namespace {
@@ -116,10 +118,149 @@ struct Slab {
   std::vector<std::byte> data;
 };
 
+// Adds the sums of `from` into `into`. Integer sums add exactly; compensated float sums add their
+// sums with the same Neumaier step (its rounding error joins the compensations).
+void Merge(const Accumulator& from, Accumulator& into) {
+  into.min = std::min(into.min, from.min);
+  into.max = std::max(into.max, from.max);
+  into.int_sum += from.int_sum;
+  const double t = into.float_sum + from.float_sum;
+  const double lost = std::fabs(into.float_sum) >= std::fabs(from.float_sum)
+                          ? (into.float_sum - t) + from.float_sum
+                          : (from.float_sum - t) + into.float_sum;
+  into.float_comp += from.float_comp + lost;
+  into.float_sum = t;
+  into.count += from.count;
+  into.nan_count += from.nan_count;
+}
+
+VolumeStats Finish(DataType dtype, const std::vector<Accumulator>& acc) {
+  VolumeStats stats;
+  for (const Accumulator& a : acc) {
+    ChannelStats c;
+    c.count = a.count;
+    c.nan_count = a.nan_count;
+    if (a.count > 0) {
+      c.min = a.min;
+      c.max = a.max;
+      c.mean = volume::IsFloat(dtype)
+                   ? (a.float_sum + a.float_comp) / static_cast<double>(a.count)
+                   // Exact integer sum, one rounding in the division (long double keeps 64 bits).
+                   : static_cast<double>(static_cast<long double>(a.int_sum) /
+                                         static_cast<long double>(a.count));
+    } else {
+      c.min = c.max = c.mean = std::numeric_limits<double>::quiet_NaN();
+    }
+    stats.channels.push_back(c);
+  }
+  return stats;
+}
+
+// Zero-copy path: the (z, c) planes, in z-major order (sequential in channel-interleaved files),
+// are cut into one contiguous share per thread, so each thread walks the file forward and the
+// result depends only on the thread count. A plane the source does not offer in place (a file of a
+// multi-file set that cannot be mapped) is read into a per-thread buffer instead.
+Result<VolumeStats> ComputeMappedStats(VolumeSource& source, const StatsOptions& options,
+                                       int threads) {
+  const volume::VolumeInfo& info = source.info();
+  const int channels = info.channel_count();
+  const uint64_t total_planes = static_cast<uint64_t>(info.size[2]) * channels;
+  const uint64_t plane_bytes = source.SlabBytes(1);
+  const size_t plane_voxels = static_cast<size_t>(info.PlaneVoxels());
+  const int workers =
+      static_cast<int>(std::clamp<uint64_t>(static_cast<uint64_t>(threads), 1, total_planes));
+
+  struct Worker {
+    std::vector<Accumulator> acc;
+    Status status;
+  };
+  std::vector<Worker> work(static_cast<size_t>(workers));
+  std::atomic<uint64_t> planes_done{0};
+  std::atomic<bool> stop{false};  // Set on the first error: the others give up early.
+  uint64_t reported = 0;          // The last progress reported (by the calling thread only).
+
+  // Sums planes [begin, end) of the z-major order into `w`. Errors (exceptions included) end up
+  // in w.status; only the progress callback, called when `report`, may throw.
+  auto run = [&](Worker& w, uint64_t begin, uint64_t end, bool report) {
+    std::vector<std::byte> buffer;  // For planes not offered in place.
+    for (uint64_t i = begin; i < end && !stop.load(std::memory_order_relaxed); ++i) {
+      try {
+        if (w.acc.empty()) w.acc.assign(static_cast<size_t>(channels), Accumulator{});
+        const int64_t z = static_cast<int64_t>(i / static_cast<uint64_t>(channels));
+        const int c = static_cast<int>(i % static_cast<uint64_t>(channels));
+        std::optional<std::span<const std::byte>> plane = source.MappedPlane(c, z);
+        if (!plane || plane->size() != plane_bytes) {
+          buffer.resize(static_cast<size_t>(plane_bytes));
+          w.status = source.ReadSlab(c, z, 1, buffer);
+          plane = std::span<const std::byte>(buffer);
+        }
+        if (w.status.ok()) {
+          Accumulate(info.dtype, plane->data(), plane_voxels, w.acc[static_cast<size_t>(c)]);
+        }
+      } catch (const std::bad_alloc&) {
+        w.status = ResourceExhaustedError("out of memory reading a plane of " +
+                                          std::to_string(plane_bytes) + " bytes");
+      } catch (const std::exception& e) {
+        w.status = InternalError(std::string("summing planes: ") + e.what());
+      }
+      if (!w.status.ok()) {
+        stop = true;
+        return;
+      }
+      const uint64_t done = planes_done.fetch_add(1, std::memory_order_relaxed) + 1;
+      if (report && options.progress) {
+        reported = done;
+        options.progress(done, total_planes);
+      }
+    }
+  };
+  auto share = [&](int k) { return total_planes * static_cast<uint64_t>(k) / workers; };
+
+  std::vector<std::thread> helpers;
+  // Whatever happens on this thread (a throwing progress callback, a failed thread start), stop
+  // and join the helpers before the shared state above goes out of scope.
+  struct JoinGuard {
+    std::atomic<bool>& stop;
+    std::vector<std::thread>& helpers;
+    ~JoinGuard() {
+      stop = true;
+      for (std::thread& t : helpers) {
+        if (t.joinable()) t.join();
+      }
+    }
+  } join_guard{stop, helpers};
+  for (int k = 1; k < workers; ++k) {
+    helpers.emplace_back([&, k] { run(work[k], share(k), share(k + 1), false); });
+  }
+  // The calling thread sums the first share and is the only one to report progress; the helpers'
+  // last planes are reported once they are joined.
+  run(work[0], share(0), share(1), true);
+  for (std::thread& t : helpers) t.join();
+  for (const Worker& w : work) {
+    if (!w.status.ok()) return w.status;
+  }
+  if (options.progress && reported < total_planes) options.progress(total_planes, total_planes);
+
+  std::vector<Accumulator> acc(static_cast<size_t>(channels));
+  for (const Worker& w : work) {
+    // Every share holds at least one plane (workers <= planes), so every acc is sized.
+    for (int c = 0; c < channels && !w.acc.empty(); ++c) Merge(w.acc[c], acc[c]);
+  }
+  return Finish(info.dtype, acc);
+}
+
 }  // namespace
 
 Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions& options) {
   const volume::VolumeInfo& info = source.info();
+  if (options.zero_copy && info.size[2] > 0 && info.channel_count() > 0 &&
+      source.MappedPlane(0, 0)) {
+    int threads = options.threads;
+    if (threads <= 0) {
+      threads = static_cast<int>(std::clamp(std::thread::hardware_concurrency(), 1u, 4u));
+    }
+    return ComputeMappedStats(source, options, threads);
+  }
   const uint64_t plane_bytes = source.SlabBytes(1);
   const int64_t planes_per_slab = static_cast<int64_t>(
       std::clamp<uint64_t>(options.slab_bytes / std::max<uint64_t>(plane_bytes, 1), 1,
@@ -224,26 +365,7 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
   }
   join_guard.stop_and_join();
   if (!status.ok()) return status;
-
-  VolumeStats stats;
-  for (const Accumulator& a : acc) {
-    ChannelStats c;
-    c.count = a.count;
-    c.nan_count = a.nan_count;
-    if (a.count > 0) {
-      c.min = a.min;
-      c.max = a.max;
-      c.mean = volume::IsFloat(info.dtype)
-                   ? (a.float_sum + a.float_comp) / static_cast<double>(a.count)
-                   // Exact integer sum, one rounding in the division (long double keeps 64 bits).
-                   : static_cast<double>(static_cast<long double>(a.int_sum) /
-                                         static_cast<long double>(a.count));
-    } else {
-      c.min = c.max = c.mean = std::numeric_limits<double>::quiet_NaN();
-    }
-    stats.channels.push_back(c);
-  }
-  return stats;
+  return Finish(info.dtype, acc);
 }
 
 }  // namespace octoscope::io

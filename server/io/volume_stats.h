@@ -1,10 +1,14 @@
 // VolumeStats: per-channel minimum, maximum and mean of every voxel of a VolumeSource, in the
-// file's own units, computed by streaming the source slab by slab (memory: two slabs).
+// file's own units. When the source offers its planes in place (VolumeSource::MappedPlane), they
+// are summed there, zero-copy, by a few threads, each summing its share of the (z, c) planes into
+// its own per-channel sums, merged at the end. Otherwise the source is streamed slab by slab
+// (memory: two slabs), one thread reading while the calling thread sums.
 // Integer means are exact (integer sums, one division); float means use compensated (Neumaier)
 // summation, accurate to a few units in the last place of a double. NaNs are counted, not summed.
 //
-// Thread safety: ComputeVolumeStats reads the source from one helper thread while the calling
-// thread accumulates; the source must be thread-safe (all VolumeSources are).
+// Thread safety: ComputeVolumeStats reads the source from helper threads as well as the calling
+// thread; the source must be thread-safe (all VolumeSources are). The progress callback is only
+// ever called from the calling thread.
 #ifndef OCTOSCOPE_IO_VOLUME_STATS_H_
 #define OCTOSCOPE_IO_VOLUME_STATS_H_
 
@@ -34,6 +38,11 @@ struct StatsOptions {
   uint64_t slab_bytes = uint64_t{4} << 20;
   // Called after each slab with (planes done, planes total) over all channels.
   std::function<void(uint64_t, uint64_t)> progress;
+  // Threads summing mapped planes in place, the calling thread included; 0: the hardware's
+  // concurrency, at most 4 (a couple of cores already outrun the memory bus).
+  int threads = 0;
+  // Use MappedPlane views when the source offers them; false forces the streaming path.
+  bool zero_copy = true;
 };
 
 Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions& options);

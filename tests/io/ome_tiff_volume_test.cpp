@@ -1,14 +1,19 @@
 #include "io/ome_tiff_volume.h"
 
 #include <gtest/gtest.h>
+#include <tiffio.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
+#include <bit>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <map>
+#include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -495,6 +500,14 @@ void CheckPattern(const fs::path& path, int size_z, int size_c, int size_t_) {
                 << path << " z " << z << " c " << c << " t " << t << " x " << x << " y " << y;
           }
         }
+        // A zero-copy view, when offered, holds the same plane.
+        if (std::optional<std::span<const std::byte>> view = source.MappedPlane(c, z)) {
+          const size_t plane = static_cast<size_t>(kW) * kH * 2;
+          EXPECT_EQ(
+              std::vector<std::byte>(view->begin(), view->end()),
+              std::vector<std::byte>(slab.begin() + z * plane, slab.begin() + (z + 1) * plane))
+              << path << " z " << z << " c " << c << " t " << t;
+        }
       }
     }
   }
@@ -660,6 +673,93 @@ TEST(OmeTiffVolumeTest, MultiFileWithCompanion) {
   CheckPattern(dir / "set.companion.ome", kZ, kC, kT);
   CheckPattern(dir / "sub/t1.ome.tif", kZ, kC, kT);
   CheckMultiFileInfo(dir / "t0.ome.tif");
+  fs::remove_all(dir);
+}
+
+TEST(OmeTiffVolumeTest, MappedPlaneOfferedForUncompressedPagesOnly) {
+  const fs::path dir = MakeTempDir("ome-mapped");
+  for (uint16_t compression : {uint16_t{COMPRESSION_NONE}, uint16_t{COMPRESSION_ADOBE_DEFLATE}}) {
+    const fs::path path = dir / ("c" + std::to_string(compression) + ".ome.tif");
+    ASSERT_TRUE(WritePages(path, PagesInOrder("XYCZT"),
+                           OmeDoc(PixelsAttrs("XYCZT", kW, kH, kZ, kC, kT), "<TiffData/>"),
+                           compression));
+    for (int t : {0, 3}) {
+      auto source = Open(path, 0, t);
+      ASSERT_TRUE(source.ok()) << source.status().ToString();
+      for (int c = 0; c < kC; ++c) {
+        for (int z = 0; z < kZ; ++z) {
+          std::optional<std::span<const std::byte>> view = (*source)->MappedPlane(c, z);
+          ASSERT_EQ(view.has_value(),
+                    compression == COMPRESSION_NONE && std::endian::native == std::endian::little);
+          if (!view) continue;
+          int wrong = 0;
+          for (uint32_t y = 0; y < kH; ++y) {
+            for (uint32_t x = 0; x < kW; ++x) {
+              uint16_t got;
+              std::memcpy(&got, view->data() + (y * kW + x) * 2, 2);
+              if (got != Pattern(z, c, t, x, y)) ++wrong;
+            }
+          }
+          EXPECT_EQ(wrong, 0) << "z " << z << " c " << c << " t " << t;
+        }
+      }
+      EXPECT_FALSE((*source)->MappedPlane(kC, 0).has_value());
+      EXPECT_FALSE((*source)->MappedPlane(0, kZ).has_value());
+      EXPECT_FALSE((*source)->MappedPlane(-1, 0).has_value());
+    }
+  }
+  fs::remove_all(dir);
+}
+
+TEST(OmeTiffVolumeTest, MappedPlanesOutliveCacheEvictionAcrossManyFiles) {
+  if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
+  // One plane per file, more files than the source keeps open in its cache: the views handed out
+  // must stay valid while reads evict and reopen the files.
+  const fs::path dir = MakeTempDir("ome-many");
+  constexpr int kFiles = 3 * static_cast<int>(kMaxOpenOmeTiffFiles);
+  std::string children;
+  for (int z = 0; z < kFiles; ++z) {
+    children += "<TiffData FirstZ=\"" + std::to_string(z) +
+                "\" PlaneCount=\"1\"><UUID FileName=\"f" + std::to_string(z) +
+                ".ome.tif\">urn:uuid:f" + std::to_string(z) + "</UUID></TiffData>";
+  }
+  for (int z = 0; z < kFiles; ++z) {
+    const std::string description =
+        z == 0 ? OmeDoc(PixelsAttrs("XYZCT", kW, kH, kFiles, 1, 1), children, "urn:uuid:f0")
+               : std::string("not the master");
+    ASSERT_TRUE(WritePages(dir / ("f" + std::to_string(z) + ".ome.tif"), {{z, 0, 0}}, description));
+  }
+  auto source = Open(dir / "f0.ome.tif");
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  std::vector<std::optional<std::span<const std::byte>>> views;
+  for (int z = 0; z < kFiles; ++z) views.push_back((*source)->MappedPlane(0, z));
+  // More views than the cache holds files (planes past the source's pinning limit may fall back).
+  const auto offered =
+      std::count_if(views.begin(), views.end(), [](auto& v) { return v.has_value(); });
+  EXPECT_GT(offered, static_cast<long>(kMaxOpenOmeTiffFiles));
+  // Read every plane twice (evicting and reopening files), then check every view.
+  for (int round = 0; round < 2; ++round) {
+    for (int z = 0; z < kFiles; ++z) {
+      std::vector<std::byte> plane = ReadSlab(**source, 0, z, 1);
+      ASSERT_EQ(SampleAt(plane, DataType::kUint16, 0), Pattern(z, 0, 0, 0, 0));
+    }
+  }
+  int wrong = 0;
+  for (int z = 0; z < kFiles; ++z) {
+    if (!views[z]) continue;
+    for (uint32_t y = 0; y < kH; ++y) {
+      for (uint32_t x = 0; x < kW; ++x) {
+        uint16_t got;
+        std::memcpy(&got, views[z]->data() + (y * kW + x) * 2, 2);
+        if (got != Pattern(z, 0, 0, x, y)) ++wrong;
+      }
+    }
+    // Asking again gives the same view (the pinned file's mapping).
+    std::optional<std::span<const std::byte>> again = (*source)->MappedPlane(0, z);
+    ASSERT_TRUE(again.has_value());
+    EXPECT_EQ(again->data(), views[z]->data());
+  }
+  EXPECT_EQ(wrong, 0);
   fs::remove_all(dir);
 }
 

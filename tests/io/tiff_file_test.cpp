@@ -14,6 +14,8 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <optional>
 #include <random>
 #include <string>
 #include <thread>
@@ -990,6 +992,236 @@ TEST_F(TiffFileTest, ContiguousDataOffset) {
   auto compressed = TiffFile::Open(Fixture("contig_lzw.tif", lzw));
   ASSERT_TRUE(compressed.ok());
   EXPECT_EQ((*compressed)->ContiguousDataOffset(0).status().code(), StatusCode::kUnsupported);
+}
+
+// ---------------------------------------------------------------------------------------------
+// MappedPlane: zero-copy views, offered exactly when the file holds the decoded samples.
+
+// The decoded plane of (page, sample), through ReadPlane.
+std::vector<std::byte> Decoded(TiffFile& file, int page, int sample = 0) {
+  const TiffIfd& ifd = file.ifd(page);
+  std::vector<std::byte> out(size_t{ifd.width} * ifd.height * volume::BytesPerSample(*ifd.dtype));
+  EXPECT_TRUE(file.ReadPlane(page, sample, out).ok());
+  return out;
+}
+
+std::vector<std::byte> Bytes(std::span<const std::byte> view) {
+  return std::vector<std::byte>(view.begin(), view.end());
+}
+
+// The value array of the SHORT or LONG entry `tag` (strip offsets, byte counts): where it lies
+// and the size of one value.
+struct ValueArray {
+  size_t at = 0;
+  int size = 4;
+  uint32_t Get(const std::vector<uint8_t>& b, int i) const {
+    return ::octoscope::io::Get(b, at + i * size, size);
+  }
+  void Put(std::vector<uint8_t>& b, int i, uint32_t v) const {
+    ::octoscope::io::Put(b, at + i * size, size, v);
+  }
+};
+
+ValueArray ArrayOf(const std::vector<uint8_t>& b, size_t ifd, uint16_t tag) {
+  const size_t e = EntryPos(b, ifd, tag);
+  EXPECT_NE(e, 0u);
+  ValueArray a;
+  a.size = Get(b, e + 2, 2) == TIFF_SHORT ? 2 : 4;
+  a.at = Get(b, e + 4, 4) * a.size > 4 ? Get(b, e + 8, 4) : e + 8;
+  return a;
+}
+
+TEST_F(TiffFileTest, MappedPlaneEqualsReadPlaneForUncompressedLittleEndianStrips) {
+  if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
+  struct Case {
+    const char* name;
+    uint16_t bits, format;
+    uint32_t rows_per_strip;
+  };
+  for (const Case& c :
+       {Case{"u16_one_strip", 16, 1, 8}, Case{"u16_strips", 16, 1, 3}, Case{"u8_strips", 8, 1, 1},
+        Case{"i16_strips", 16, 2, 5}, Case{"u32_strips", 32, 1, 3}, Case{"f32_one_strip", 32, 3, 8},
+        Case{"f64_strips", 64, 3, 2}}) {
+    SCOPED_TRACE(c.name);
+    TiffFixtureSpec spec;
+    spec.pages = 3;
+    spec.bits_per_sample = c.bits;
+    spec.sample_format = c.format;
+    spec.rows_per_strip = c.rows_per_strip;
+    const fs::path path = Fixture(std::string(c.name) + ".tif", spec);
+    auto file = TiffFile::Open(path);
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    const std::vector<uint8_t> bytes = ReadAll(path);
+    int offered = 0;
+    for (int page : {2, 0, 1, 2}) {  // Out of order, and twice: the answer is cached.
+      // TIFF aligns data to 2 bytes only: a page whose samples do not start at a multiple of
+      // their size in the file (hence in the page-aligned mapping) is not offered.
+      const uint32_t first_strip =
+          ArrayOf(bytes, IfdOffset(bytes, page), TIFFTAG_STRIPOFFSETS).Get(bytes, 0);
+      std::optional<std::span<const std::byte>> view = (*file)->MappedPlane(page);
+      ASSERT_EQ(view.has_value(), first_strip % (c.bits / 8) == 0) << "page " << page;
+      if (!view) continue;
+      ++offered;
+      EXPECT_EQ(view->size(), size_t{16} * 8 * c.bits / 8);
+      EXPECT_EQ(reinterpret_cast<uintptr_t>(view->data()) % (c.bits / 8), 0u);
+      EXPECT_EQ(Bytes(*view), Decoded(**file, page)) << "page " << page;
+    }
+    EXPECT_GT(offered, 0);  // Page 0 follows the 8-byte header directly.
+    // Out-of-range requests are simply not offered.
+    EXPECT_FALSE((*file)->MappedPlane(3).has_value());
+    EXPECT_FALSE((*file)->MappedPlane(-1).has_value());
+    EXPECT_FALSE((*file)->MappedPlane(0, 1).has_value());
+  }
+}
+
+TEST_F(TiffFileTest, MappedPlaneOfPlanarSamplesAndBigTiff) {
+  if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
+  TiffFixtureSpec spec;
+  spec.pages = 2;
+  spec.samples_per_pixel = 3;
+  spec.planar_config = PLANARCONFIG_SEPARATE;
+  spec.big_tiff = true;
+  auto file = TiffFile::Open(Fixture("planar.tif", spec));
+  ASSERT_TRUE(file.ok()) << file.status().ToString();
+  for (int page = 0; page < 2; ++page) {
+    for (int sample = 0; sample < 3; ++sample) {
+      std::optional<std::span<const std::byte>> view = (*file)->MappedPlane(page, sample);
+      ASSERT_TRUE(view.has_value()) << page << "/" << sample;
+      EXPECT_EQ(Bytes(*view), Decoded(**file, page, sample)) << page << "/" << sample;
+    }
+  }
+  EXPECT_FALSE((*file)->MappedPlane(0, 3).has_value());
+}
+
+TEST_F(TiffFileTest, MappedPlaneIsNotOfferedForOtherLayouts) {
+  struct Case {
+    const char* name;
+    TiffFixtureSpec spec;
+  };
+  std::vector<Case> cases;
+  TiffFixtureSpec deflate;
+  deflate.compression = COMPRESSION_ADOBE_DEFLATE;
+  cases.push_back({"deflate", deflate});
+  TiffFixtureSpec packbits;
+  packbits.compression = COMPRESSION_PACKBITS;
+  cases.push_back({"packbits", packbits});
+  TiffFixtureSpec big_endian;
+  big_endian.big_endian = true;
+  cases.push_back({"big_endian_u16", big_endian});
+  TiffFixtureSpec tiled;
+  tiled.width = 32;
+  tiled.height = 32;
+  tiled.tile_width = 16;
+  tiled.tile_height = 16;
+  cases.push_back({"tiled", tiled});
+  TiffFixtureSpec chunky;
+  chunky.samples_per_pixel = 3;
+  chunky.planar_config = PLANARCONFIG_CONTIG;
+  cases.push_back({"chunky_rgb", chunky});
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    auto file = TiffFile::Open(Fixture(std::string(c.name) + ".tif", c.spec));
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    EXPECT_FALSE((*file)->MappedPlane(0).has_value());
+    // The copying path still reads it.
+    EXPECT_EQ(Decoded(**file, 0).size(), size_t{c.spec.width} * c.spec.height * 2);
+  }
+  // Bytes have no order: a big-endian 8-bit file is viewed in place.
+  TiffFixtureSpec big_u8;
+  big_u8.big_endian = true;
+  big_u8.bits_per_sample = 8;
+  auto file = TiffFile::Open(Fixture("big_endian_u8.tif", big_u8));
+  ASSERT_TRUE(file.ok());
+  std::optional<std::span<const std::byte>> view = (*file)->MappedPlane(0);
+  ASSERT_TRUE(view.has_value());
+  EXPECT_EQ(Bytes(*view), Decoded(**file, 0));
+}
+
+TEST_F(TiffFileTest, MappedPlaneNeedsContiguousAlignedStrips) {
+  if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
+  TiffFixtureSpec spec;  // 16x8 uint16 in strips of 3 rows: 96 + 96 + 64 bytes.
+  spec.rows_per_strip = 3;
+  const fs::path good = Fixture("good.tif", spec);
+  {
+    auto file = TiffFile::Open(good);
+    ASSERT_TRUE(file.ok());
+    ASSERT_TRUE((*file)->MappedPlane(0).has_value());  // The unpatched control.
+  }
+  const std::vector<uint8_t> original = ReadAll(good);
+  const size_t ifd = IfdOffset(original, 0);
+  const ValueArray offsets = ArrayOf(original, ifd, TIFFTAG_STRIPOFFSETS);
+  const ValueArray counts = ArrayOf(original, ifd, TIFFTAG_STRIPBYTECOUNTS);
+  ASSERT_EQ(counts.Get(original, 0), 96u);
+  ASSERT_EQ(counts.Get(original, 2), 64u);
+  ASSERT_EQ(offsets.Get(original, 1), offsets.Get(original, 0) + 96);  // Contiguous, unpatched.
+
+  // Each patch keeps every strip inside the file, so ReadPlane still reads the (moved) strips.
+  auto expect_not_mapped = [&](const std::string& name,
+                               const std::function<void(std::vector<uint8_t>&)>& patch) {
+    SCOPED_TRACE(name);
+    std::vector<uint8_t> bytes = original;
+    patch(bytes);
+    const fs::path path = dir_ / (name + ".tif");
+    WriteAll(path, bytes);
+    auto file = TiffFile::Open(path);
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    EXPECT_FALSE((*file)->MappedPlane(0).has_value());
+    std::vector<std::byte> plane(16 * 8 * 2);
+    EXPECT_TRUE((*file)->ReadPlane(0, 0, plane).ok());
+  };
+  // A 2-byte gap before strip 1.
+  expect_not_mapped("gap",
+                    [&](std::vector<uint8_t>& b) { offsets.Put(b, 1, offsets.Get(b, 1) + 2); });
+  // Strips 0 and 1 swapped in the file (equal sizes).
+  expect_not_mapped("swapped", [&](std::vector<uint8_t>& b) {
+    const uint32_t first = offsets.Get(b, 0), second = offsets.Get(b, 1);
+    offsets.Put(b, 0, second);
+    offsets.Put(b, 1, first);
+  });
+  // Strip 2 sparse (offset and byte count 0: read as zeros).
+  expect_not_mapped("sparse", [&](std::vector<uint8_t>& b) {
+    offsets.Put(b, 2, 0);
+    counts.Put(b, 2, 0);
+  });
+  // Every strip one byte later: contiguous, but 16-bit samples at odd addresses.
+  expect_not_mapped("misaligned", [&](std::vector<uint8_t>& b) {
+    for (int s = 0; s < 3; ++s) offsets.Put(b, s, offsets.Get(b, s) + 1);
+  });
+}
+
+TEST_F(TiffFileTest, MappedPlaneFromManyThreads) {
+  if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
+  TiffFixtureSpec spec;
+  spec.pages = 8;
+  spec.width = 64;
+  spec.height = 32;
+  auto file = TiffFile::Open(Fixture("threads.tif", spec));
+  ASSERT_TRUE(file.ok());
+  std::vector<std::vector<std::byte>> expected;
+  for (int page = 0; page < 8; ++page) expected.push_back(Decoded(**file, page));
+  // The first calls race to map the file: one mapping, every view right.
+  std::vector<int> mismatches(4, 0);
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&, t] {
+      for (int round = 0; round < 20; ++round) {
+        const int page = (t + round) % 8;
+        std::optional<std::span<const std::byte>> view = (*file)->MappedPlane(page);
+        if (!view || Bytes(*view) != expected[page]) ++mismatches[t];
+      }
+    });
+  }
+  for (std::thread& t : threads) t.join();
+  EXPECT_EQ(mismatches, std::vector<int>(4, 0));
+  // Views of one file share its single mapping: page k sits where the file stores it.
+  const std::span<const std::byte> a = *(*file)->MappedPlane(0);
+  const std::span<const std::byte> b = *(*file)->MappedPlane(1);
+  std::optional<std::span<const std::byte>> raw = (*file)->MappedBytes(0, 4);
+  ASSERT_TRUE(raw.has_value());
+  EXPECT_EQ(static_cast<char>((*raw)[0]), 'I');
+  EXPECT_LT(static_cast<size_t>(a.data() - raw->data()), (*file)->file_size());
+  EXPECT_LT(static_cast<size_t>(b.data() - raw->data()), (*file)->file_size());
+  EXPECT_FALSE((*file)->MappedBytes((*file)->file_size() - 1, 2).has_value());
 }
 
 // ---------------------------------------------------------------------------------------------

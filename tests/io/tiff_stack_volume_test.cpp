@@ -8,8 +8,11 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstring>
 #include <fstream>
+#include <optional>
+#include <span>
 #include <string>
 #include <thread>
 #include <vector>
@@ -215,6 +218,29 @@ TEST_P(TiffStackRoundTrip, ReadsEveryVoxel) {
           << c.name << " channel " << ch << " z " << z;
     }
   }
+  // Zero-copy views: offered exactly for uncompressed strips of single samples (or planar
+  // samples) in native byte order, and then equal to what ReadSlab decodes.
+  const bool mappable = std::endian::native == std::endian::little && spec.compression == 1 &&
+                        spec.tile_width == 0 && (!spec.big_endian || spec.bits_per_sample == 8) &&
+                        (spec.samples_per_pixel == 1 || spec.planar_config == 2);
+  for (int ch = 0; ch < info.channel_count(); ++ch) {
+    for (int z : {0, spec.pages - 1}) {
+      std::optional<std::span<const std::byte>> view = v.MappedPlane(ch, z);
+      // libtiff keeps data 2-byte aligned only: wider samples are offered when they happen to be
+      // aligned (TiffFile's own tests pin that rule down).
+      if (!mappable || spec.bits_per_sample <= 16) {
+        ASSERT_EQ(view.has_value(), mappable) << c.name << " channel " << ch << " z " << z;
+      }
+      if (!view) continue;
+      std::vector<std::byte> plane(v.SlabBytes(1));
+      ASSERT_TRUE(v.ReadSlab(ch, z, 1, plane).ok());
+      EXPECT_EQ(std::vector<std::byte>(view->begin(), view->end()), plane)
+          << c.name << " channel " << ch << " z " << z;
+    }
+  }
+  EXPECT_FALSE(v.MappedPlane(info.channel_count(), 0).has_value());
+  EXPECT_FALSE(v.MappedPlane(0, spec.pages).has_value());
+
   std::vector<std::byte> slab(v.SlabBytes(2));
   ASSERT_TRUE(v.ReadSlab(info.channel_count() - 1, 2, 2, slab).ok());
   EXPECT_EQ(CountMismatches(std::span(slab).first(plane_bytes), type, spec.width, spec.height, 2,
@@ -761,6 +787,16 @@ TEST_F(TiffStackTest, ImageJSingleIfdContiguousImages) {
           }
         }
         EXPECT_EQ(wrong, 0) << "c " << c << " t " << t;
+        // The images are raw runs of the file: viewed in place when in native byte order.
+        for (int z = 0; z < 3; ++z) {
+          std::optional<std::span<const std::byte>> view = (*source)->MappedPlane(c, z);
+          ASSERT_EQ(view.has_value(), big_endian == (std::endian::native == std::endian::big));
+          if (view) {
+            EXPECT_EQ(std::vector<std::byte>(view->begin(), view->end()),
+                      std::vector<std::byte>(slab.begin() + z * 11 * 7 * 2,
+                                             slab.begin() + (z + 1) * 11 * 7 * 2));
+          }
+        }
         // A single-plane slab from the middle.
         std::vector<std::byte> one((*source)->SlabBytes(1));
         ASSERT_TRUE((*source)->ReadSlab(c, 2, 1, one).ok());

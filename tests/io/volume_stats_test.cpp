@@ -2,12 +2,23 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <functional>
 #include <limits>
+#include <optional>
 #include <random>
 #include <stdexcept>
+#include <thread>
+#include <vector>
 
 #include "io/memory_volume.h"
+#include "io/ome_tiff_volume.h"
+#include "io/ome_tiff_writer.h"
+#include "io/tiff_fixture.h"
 
 namespace octoscope::io {
 namespace {
@@ -149,6 +160,252 @@ TEST(VolumeStatsTest, AThrowingProgressCallbackStillJoinsTheReader) {
     if (done == 3) throw std::runtime_error("cancelled by the user");
   };
   EXPECT_THROW((void)ComputeVolumeStats(**vol, options), std::runtime_error);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The zero-copy path (sources that offer MappedPlane views).
+
+// Statistics computed here, independently: exact long double sums over every voxel.
+std::vector<ChannelStats> HandStats(VolumeSource& source) {
+  const volume::VolumeInfo& info = source.info();
+  std::vector<ChannelStats> out;
+  for (int c = 0; c < info.channel_count(); ++c) {
+    std::vector<std::byte> all(source.SlabBytes(info.size[2]));
+    EXPECT_TRUE(source.ReadSlab(c, 0, info.size[2], all).ok());
+    const size_t n = all.size() / volume::BytesPerSample(info.dtype);
+    long double sum = 0;
+    ChannelStats s;
+    s.min = std::numeric_limits<double>::infinity();
+    s.max = -s.min;
+    for (size_t i = 0; i < n; ++i) {
+      double v;
+      if (info.dtype == DataType::kUint16) {
+        uint16_t x;
+        std::memcpy(&x, all.data() + 2 * i, 2);
+        v = x;
+      } else {
+        float x;
+        std::memcpy(&x, all.data() + 4 * i, 4);
+        v = x;
+      }
+      s.min = std::min(s.min, v);
+      s.max = std::max(s.max, v);
+      sum += v;
+    }
+    s.count = n;
+    s.mean = static_cast<double>(sum / n);
+    out.push_back(s);
+  }
+  return out;
+}
+
+// Compares two results: min, max and counts exactly; integer means exactly (exact sums), float
+// means to a few units in the last place (the summation order differs).
+void ExpectSameStats(const VolumeStats& a, const std::vector<ChannelStats>& b, DataType type) {
+  ASSERT_EQ(a.channels.size(), b.size());
+  for (size_t c = 0; c < b.size(); ++c) {
+    SCOPED_TRACE("channel " + std::to_string(c));
+    EXPECT_EQ(a.channels[c].min, b[c].min);
+    EXPECT_EQ(a.channels[c].max, b[c].max);
+    EXPECT_EQ(a.channels[c].count, b[c].count);
+    EXPECT_EQ(a.channels[c].nan_count, b[c].nan_count);
+    if (type == DataType::kUint16) {
+      EXPECT_EQ(a.channels[c].mean, b[c].mean);
+    } else {
+      EXPECT_NEAR(a.channels[c].mean, b[c].mean, std::fabs(b[c].mean) * 1e-14);
+    }
+  }
+}
+
+class VolumeStatsFileTest : public ::testing::Test {
+ protected:
+  void SetUp() override { dir_ = testing::MakeTempDir("volume-stats"); }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  // An uncompressed OME-TIFF of `z` planes x `channels` of pseudo-random values (one extreme
+  // value per channel in the last plane), opened for reading.
+  std::unique_ptr<VolumeSource> Write(DataType type, int channels, int64_t z,
+                                      TiffCompression compression = TiffCompression::kNone) {
+    auto vol = MemoryVolume::Create(Info(type, 67, 45, z, channels));
+    EXPECT_TRUE(vol.ok());
+    std::mt19937 rng(1234 + channels);
+    std::uniform_int_distribution<int> ints(100, 60000);
+    std::uniform_real_distribution<float> floats(-1000.f, 1000.f);
+    for (int c = 0; c < channels; ++c)
+      for (int64_t k = 0; k < z; ++k)
+        for (int y = 0; y < 45; ++y)
+          for (int x = 0; x < 67; ++x) {
+            if (type == DataType::kUint16) {
+              (*vol)->Set<uint16_t>(c, x, y, k, static_cast<uint16_t>(ints(rng)));
+            } else {
+              (*vol)->Set<float>(c, x, y, k, floats(rng) * static_cast<float>(c + 1));
+            }
+          }
+    if (type == DataType::kUint16) {
+      (*vol)->Set<uint16_t>(channels - 1, 66, 44, z - 1, 65535);
+    } else {
+      (*vol)->Set<float>(channels - 1, 66, 44, z - 1, 3e6f);
+    }
+    const std::filesystem::path path = dir_ / ("v" + std::to_string(files_++) + ".ome.tif");
+    OmeTiffWriteOptions options;
+    options.compression = compression;
+    EXPECT_TRUE(WriteOmeTiff(**vol, path, options).ok());
+    auto source = OpenOmeTiff(path, OpenOptions{});
+    EXPECT_TRUE(source.ok()) << source.status().ToString();
+    return source.ok() ? std::move(*source) : nullptr;
+  }
+
+  std::filesystem::path dir_;
+  int files_ = 0;
+};
+
+TEST_F(VolumeStatsFileTest, ZeroCopyEqualsCopyPathAndHandSums) {
+  for (DataType type : {DataType::kUint16, DataType::kFloat32}) {
+    for (int channels = 1; channels <= 3; ++channels) {
+      SCOPED_TRACE(std::string(volume::NumpyName(type)) + " x" + std::to_string(channels));
+      std::unique_ptr<VolumeSource> source = Write(type, channels, 7);  // Odd plane count.
+      ASSERT_NE(source, nullptr);
+      ASSERT_TRUE(source->MappedPlane(0, 0).has_value());
+      const std::vector<ChannelStats> hand = HandStats(*source);
+
+      StatsOptions copy;
+      copy.zero_copy = false;
+      copy.slab_bytes = 1;  // One plane per slab.
+      auto copied = ComputeVolumeStats(*source, copy);
+      ASSERT_TRUE(copied.ok()) << copied.status().ToString();
+      ExpectSameStats(*copied, hand, type);
+
+      // 1, 2, 3 and more threads than planes: shares of different (and odd) sizes.
+      for (int threads : {1, 2, 3, 64}) {
+        SCOPED_TRACE("threads " + std::to_string(threads));
+        StatsOptions zero;
+        zero.threads = threads;
+        const std::thread::id caller = std::this_thread::get_id();
+        uint64_t last = 0, calls = 0;
+        zero.progress = [&](uint64_t done, uint64_t total) {
+          EXPECT_EQ(std::this_thread::get_id(), caller);
+          EXPECT_GT(done, last);
+          EXPECT_EQ(total, static_cast<uint64_t>(7 * channels));
+          last = done;
+          ++calls;
+        };
+        auto mapped = ComputeVolumeStats(*source, zero);
+        ASSERT_TRUE(mapped.ok()) << mapped.status().ToString();
+        ExpectSameStats(*mapped, copied->channels, type);
+        ExpectSameStats(*mapped, hand, type);
+        EXPECT_EQ(last, static_cast<uint64_t>(7 * channels));
+        EXPECT_GE(calls, 1u);
+      }
+    }
+  }
+}
+
+TEST_F(VolumeStatsFileTest, CompressedFilesTakeTheCopyPath) {
+  std::unique_ptr<VolumeSource> source = Write(DataType::kUint16, 2, 5, TiffCompression::kDeflate);
+  ASSERT_NE(source, nullptr);
+  EXPECT_FALSE(source->MappedPlane(0, 0).has_value());
+  auto stats = ComputeVolumeStats(*source, {});
+  ASSERT_TRUE(stats.ok()) << stats.status().ToString();
+  ExpectSameStats(*stats, HandStats(*source), DataType::kUint16);
+}
+
+// A memory-backed source that offers views of some planes only, and can fail or throw on reads
+// of the others: exercises the per-plane fallback and error handling of the zero-copy path.
+class PartlyMappedSource : public VolumeSource {
+ public:
+  PartlyMappedSource(std::unique_ptr<MemoryVolume> vol, std::function<bool(int, int64_t)> mapped)
+      : vol_(std::move(vol)), mapped_(std::move(mapped)) {
+    const volume::VolumeInfo& i = vol_->info();
+    for (int c = 0; c < i.channel_count(); ++c) {
+      for (int64_t z = 0; z < i.size[2]; ++z) {
+        planes_.emplace_back(vol_->SlabBytes(1));
+        EXPECT_TRUE(vol_->ReadSlab(c, z, 1, planes_.back()).ok());
+      }
+    }
+  }
+  const volume::VolumeInfo& info() const override { return vol_->info(); }
+  Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+    ++reads;
+    if (fail_reads_from >= 0 && z0 >= fail_reads_from) {
+      return IoError("part.tif: read error at plane " + std::to_string(z0));
+    }
+    if (throw_reads) throw std::bad_alloc();
+    return vol_->ReadSlab(channel, z0, nz, out);
+  }
+  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+    if (!mapped_(channel, z)) return std::nullopt;
+    return std::span<const std::byte>(planes_[channel * info().size[2] + z]);
+  }
+
+  std::atomic<int> reads{0};
+  int64_t fail_reads_from = -1;
+  bool throw_reads = false;
+
+ private:
+  std::unique_ptr<MemoryVolume> vol_;
+  std::function<bool(int, int64_t)> mapped_;
+  std::vector<std::vector<std::byte>> planes_;
+};
+
+std::unique_ptr<MemoryVolume> Ramp(int64_t z, int channels) {
+  auto vol = MemoryVolume::Create(Info(DataType::kUint16, 9, 4, z, channels));
+  EXPECT_TRUE(vol.ok());
+  for (int c = 0; c < channels; ++c)
+    for (int64_t k = 0; k < z; ++k)
+      for (int y = 0; y < 4; ++y)
+        for (int x = 0; x < 9; ++x)
+          (*vol)->Set<uint16_t>(c, x, y, k, static_cast<uint16_t>(x + 9 * y + 36 * k + 1000 * c));
+  return std::move(*vol);
+}
+
+TEST(VolumeStatsZeroCopyTest, PlanesWithoutViewsAreReadInstead) {
+  // Odd z planes have views, even ones are read: both kinds in every thread's share.
+  PartlyMappedSource source(Ramp(11, 2), [](int, int64_t z) { return z % 2 == 1 || z == 0; });
+  StatsOptions options;
+  options.threads = 2;
+  auto stats = ComputeVolumeStats(source, options);
+  ASSERT_TRUE(stats.ok()) << stats.status().ToString();
+  EXPECT_EQ(source.reads.load(), 2 * 5);  // z = 2, 4, 6, 8, 10 of both channels.
+  for (int c = 0; c < 2; ++c) {
+    EXPECT_EQ(stats->channels[c].min, 1000 * c);
+    EXPECT_EQ(stats->channels[c].max, 8 + 27 + 360 + 1000 * c);
+    // Mean of x + 9y + 36z over the box: 4 + 13.5 + 180.
+    EXPECT_DOUBLE_EQ(stats->channels[c].mean, 4 + 13.5 + 180 + 1000 * c);
+    EXPECT_EQ(stats->channels[c].count, 9u * 4 * 11);
+  }
+}
+
+TEST(VolumeStatsZeroCopyTest, ReadErrorsInAnyThreadPropagate) {
+  // Plane 0 has a view (so the zero-copy path is taken); the others fail from z 8 on, which lies
+  // in the last thread's share.
+  PartlyMappedSource source(Ramp(10, 3), [](int, int64_t z) { return z < 4; });
+  source.fail_reads_from = 8;
+  StatsOptions options;
+  options.threads = 3;
+  auto stats = ComputeVolumeStats(source, options);
+  ASSERT_FALSE(stats.ok());
+  EXPECT_EQ(stats.status().code(), StatusCode::kIoError);
+  EXPECT_NE(stats.status().message().find("part.tif"), std::string::npos);
+}
+
+TEST(VolumeStatsZeroCopyTest, ExceptionsInHelperThreadsBecomeErrors) {
+  PartlyMappedSource source(Ramp(10, 1), [](int, int64_t z) { return z == 0; });
+  source.throw_reads = true;
+  StatsOptions options;
+  options.threads = 2;
+  auto stats = ComputeVolumeStats(source, options);
+  ASSERT_FALSE(stats.ok());
+  EXPECT_EQ(stats.status().code(), StatusCode::kResourceExhausted);
+}
+
+TEST(VolumeStatsZeroCopyTest, AThrowingProgressCallbackStillJoinsTheHelpers) {
+  PartlyMappedSource source(Ramp(40, 2), [](int, int64_t) { return true; });
+  StatsOptions options;
+  options.threads = 4;
+  options.progress = [](uint64_t done, uint64_t) {
+    if (done >= 3) throw std::runtime_error("cancelled by the user");
+  };
+  EXPECT_THROW((void)ComputeVolumeStats(source, options), std::runtime_error);
 }
 
 TEST(MemoryVolumeTest, RejectsBadRequestsAndHugeVolumes) {
