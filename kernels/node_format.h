@@ -1,0 +1,74 @@
+/* The device layout of the octree, shared by every kernel and checked from C++: the node buffer
+ * entry of docs/octree_format.md ("Device node buffer"), whose host encoder is
+ * server/octree/node_encoding.h, and the tree geometry the kernels receive as an argument.
+ * This is the ONE place the bit layout is written down for the device: the constants below are
+ * static_assert'ed equal to node_encoding.h (server/render/node_format_check.cpp and the render
+ * tests include this header from C++), the functions exist only in OpenCL C.
+ *
+ * Node buffer: uint32 words; node n occupies words [n * W, (n + 1) * W) with W = OCTO_NODE_WORDS(C):
+ *   word 0: bit 31 in_buffer, bit 30 has_brick, bits 0..29 child group (0 = no children; the child
+ *           in octant o = x | y << 1 | z << 2 is node 8 * group + o; the root is node 0);
+ *   word 1: brick slot in the brick buffer (valid only with in_buffer);
+ *   word 2 + k: uint16 averages of channels 2k (bits 0..15) and 2k + 1 (bits 16..31).
+ * Brick buffer: uint16 samples; the brick in slot s starts at sample s * OctoBrickSamples(g) and
+ * holds the node's interior plus a one-voxel apron, (bs + 2) voxels per axis, channels
+ * interleaved, x fastest: ((z * sy + y) * sx + x) * C + c (brick_geometry.h).
+ */
+#ifndef OCTOSCOPE_KERNELS_NODE_FORMAT_H_
+#define OCTOSCOPE_KERNELS_NODE_FORMAT_H_
+
+#define OCTO_NODE_IN_BUFFER_BIT 0x80000000u
+#define OCTO_NODE_HAS_BRICK_BIT 0x40000000u
+#define OCTO_NODE_CHILD_GROUP_MASK 0x3fffffffu
+#define OCTO_NODE_SLOT_WORD 1
+#define OCTO_NODE_AVERAGE_WORD 2
+/* Words per node for `channels` channels: 2 + ceil(channels / 2). */
+#define OCTO_NODE_WORDS(channels) (2 + ((channels) + 1) / 2)
+/* Octant bits of a child inside its parent (child index & 1 per axis). */
+#define OCTO_OCTANT_X 1
+#define OCTO_OCTANT_Y 2
+#define OCTO_OCTANT_Z 4
+#define OCTO_CHILDREN_PER_GROUP 8
+
+/* The tree's geometry as a kernel argument (passed by value; only 32-bit ints, so the layout is
+ * the same in C++ and OpenCL C: 32 bytes, no padding). Mirrors octree::BrickGeometry. */
+typedef struct OctoTreeGeometry {
+  int volume_size[3]; /* Level-0 voxels per axis. */
+  int brick_size[3];  /* Brick interior per axis (even); stored bricks are brick_size + 2. */
+  int root_level;     /* Levels 0..root_level; the root is node 0. */
+  int channels;       /* C, 1..64. */
+} OctoTreeGeometry;
+
+#ifdef __OPENCL_VERSION__
+
+uint OctoNodeWords(OctoTreeGeometry g) { return (uint)OCTO_NODE_WORDS(g.channels); }
+
+bool OctoNodeInBuffer(uint word0) { return (word0 & OCTO_NODE_IN_BUFFER_BIT) != 0u; }
+bool OctoNodeHasBrick(uint word0) { return (word0 & OCTO_NODE_HAS_BRICK_BIT) != 0u; }
+uint OctoNodeChildGroup(uint word0) { return word0 & OCTO_NODE_CHILD_GROUP_MASK; }
+
+/* Word `word` of node `node`. 64-bit offsets: node ids reach 2^33 (30-bit groups times 8). */
+uint OctoNodeWord(__global const uint* nodes, ulong node, OctoTreeGeometry g, int word) {
+  return nodes[node * OctoNodeWords(g) + (ulong)word];
+}
+
+/* The child of a node with child group `group` in `octant`. */
+ulong OctoChildNode(uint group, uint octant) {
+  return (ulong)OCTO_CHILDREN_PER_GROUP * (ulong)group + (ulong)octant;
+}
+
+/* Channel c's average of a node (uint16, as float). */
+float OctoNodeAverage(__global const uint* nodes, ulong node, OctoTreeGeometry g, int c) {
+  const uint word = OctoNodeWord(nodes, node, g, OCTO_NODE_AVERAGE_WORD + c / 2);
+  return (float)((word >> (16 * (c & 1))) & 0xffffu);
+}
+
+/* Samples of one stored brick: (bs + 2)^3 voxels times C channels. */
+ulong OctoBrickSamples(OctoTreeGeometry g) {
+  return (ulong)(g.brick_size[0] + 2) * (ulong)(g.brick_size[1] + 2) *
+         (ulong)(g.brick_size[2] + 2) * (ulong)g.channels;
+}
+
+#endif /* __OPENCL_VERSION__ */
+
+#endif /* OCTOSCOPE_KERNELS_NODE_FORMAT_H_ */

@@ -1,0 +1,130 @@
+/* Octree traversal and brick sampling on the device: the building blocks of the ray caster.
+ * Library code (no kernels); programs #include it (ProgramCache resolves includes from the
+ * embedded kernels/ files).
+ *
+ * Coordinates: positions are continuous LEVEL-0 voxel coordinates; voxel v covers [v, v + 1) and
+ * its sample sits at its centre v + 0.5. A level-L voxel j covers level-0 [j * 2^L, (j + 1) * 2^L),
+ * so a position p has level-L coordinate q = p / 2^L and lies in level-L voxel floor(q); the node
+ * of level L containing it has index floor(q) / bs (brick_geometry.h).
+ *
+ * Traversal (OctoFindNode): from the root, descend towards the node of the requested level that
+ * contains p, following child groups, and stop early where a node has no children (pruned or not
+ * yet built: its data represent the whole region). The result is the DEEPEST node of that path
+ * that can be rendered — its brick is resident (in_buffer), or it has no brick (homogeneous or
+ * virtual: its averages are its data). A node whose brick exists but is not resident is skipped
+ * (an ancestor's data are used; its children may still be resident and are used when deeper).
+ * When nothing on the path is renderable, the root's averages are used. `wanted` is the deepest
+ * node of the path whatever its residency: the node a caller would like to have resident.
+ *
+ * Sampling (OctoSample): trilinear interpolation between the 8 level-L voxel centres around p,
+ * read from the node's stored brick; p inside the node's interior always keeps the 2x2x2
+ * footprint inside the stored box thanks to the one-voxel apron (no neighbour brick is read).
+ * A node without a resident brick gives its channel average.
+ */
+#ifndef OCTOSCOPE_KERNELS_OCTREE_SAMPLING_CL_
+#define OCTOSCOPE_KERNELS_OCTREE_SAMPLING_CL_
+
+#include "node_format.h"
+
+typedef struct OctoNodeHit {
+  ulong node;       /* The node whose data represent p (see the file comment). */
+  ulong wanted;     /* The deepest node of the path, resident or not. */
+  int4 index;       /* `node`'s index in bricks per axis at its level (w unused). */
+  int level;        /* `node`'s level. */
+  int wanted_level; /* `wanted`'s level. */
+  uint word0;       /* `node`'s word 0. */
+  uint slot;        /* `node`'s brick slot; 0 unless in_buffer. */
+} OctoNodeHit;
+
+int3 OctoBrickSize(OctoTreeGeometry g) {
+  return (int3)(g.brick_size[0], g.brick_size[1], g.brick_size[2]);
+}
+
+/* The index (in bricks) of the level-`level` node containing p; p is clamped into the node grid
+ * [0, bs * 2^(R - level)) of level-`level` voxels, so any position gives a valid node. */
+int4 OctoNodeIndex(float3 p, int level, OctoTreeGeometry g) {
+  const int3 bs = OctoBrickSize(g);
+  const int3 last = bs * (1 << (g.root_level - level)) - 1;
+  /* Scaling by a power of two is exact in floating point. */
+  const int3 voxel = clamp(convert_int3_sat_rtn(p * ldexp(1.0f, -level)), (int3)(0), last);
+  const int3 index = voxel / bs;
+  return (int4)(index, 0);
+}
+
+OctoNodeHit OctoFindNode(__global const uint* nodes, OctoTreeGeometry g, float3 p, int level) {
+  const int target = clamp(level, 0, g.root_level);
+  ulong node = 0;
+  int l = g.root_level;
+  uint word0 = OctoNodeWord(nodes, 0, g, 0);
+  OctoNodeHit hit;
+  hit.node = 0;
+  hit.index = (int4)(0);
+  hit.level = l;
+  hit.word0 = word0;
+  while (l > target) {
+    const uint group = OctoNodeChildGroup(word0);
+    if (group == 0u) break; /* A leaf of the current tree: its data cover the whole region. */
+    const int4 child = OctoNodeIndex(p, l - 1, g);
+    const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
+                               (child.z & 1) * OCTO_OCTANT_Z);
+    node = OctoChildNode(group, octant);
+    --l;
+    word0 = OctoNodeWord(nodes, node, g, 0);
+    if (OctoNodeInBuffer(word0) || !OctoNodeHasBrick(word0)) {
+      hit.node = node;
+      hit.index = child;
+      hit.level = l;
+      hit.word0 = word0;
+    }
+  }
+  hit.wanted = node;
+  hit.wanted_level = l;
+  hit.slot = OctoNodeInBuffer(hit.word0) ? OctoNodeWord(nodes, hit.node, g, OCTO_NODE_SLOT_WORD) : 0u;
+  return hit;
+}
+
+/* Trilinear sample of channel c at p from the stored brick in `slot` of the level-`level` node
+ * `index`. REQUIRES: p inside that node's interior (then the footprint lies in the stored box). */
+float OctoSampleBrick(__global const ushort* bricks, OctoTreeGeometry g, uint slot, int4 index,
+                      int level, float3 p, int c) {
+  const int3 bs = OctoBrickSize(g);
+  /* Brick-local coordinates of p in units of level voxels, relative to the stored box's corner
+   * (interior origin - 1) and shifted by half a voxel, so the voxel centres are integers. */
+  const float3 brick_pos = p * ldexp(1.0f, -level) + 0.5f - convert_float3(index.xyz * bs);
+  const float3 floor_local = floor(brick_pos);
+  const int3 i0 = clamp(convert_int3(floor_local), (int3)(0), bs);
+  const float3 f = clamp(brick_pos - floor_local, 0.0f, 1.0f);
+
+  const ulong channels = (ulong)g.channels;
+  const ulong sx = (ulong)(bs.x + 2);
+  const ulong sy = (ulong)(bs.y + 2);
+  const ulong dx = channels;
+  const ulong dy = sx * channels;
+  const ulong dz = sx * sy * channels;
+  const ulong o = (ulong)slot * OctoBrickSamples(g) + (ulong)c +
+                  (((ulong)i0.z * sy + (ulong)i0.y) * sx + (ulong)i0.x) * channels;
+  const float v000 = (float)bricks[o];
+  const float v100 = (float)bricks[o + dx];
+  const float v010 = (float)bricks[o + dy];
+  const float v110 = (float)bricks[o + dy + dx];
+  const float v001 = (float)bricks[o + dz];
+  const float v101 = (float)bricks[o + dz + dx];
+  const float v011 = (float)bricks[o + dz + dy];
+  const float v111 = (float)bricks[o + dz + dy + dx];
+  const float v00 = mix(v000, v100, f.x);
+  const float v10 = mix(v010, v110, f.x);
+  const float v01 = mix(v001, v101, f.x);
+  const float v11 = mix(v011, v111, f.x);
+  return mix(mix(v00, v10, f.y), mix(v01, v11, f.y), f.z);
+}
+
+/* Channel c at p as represented by `hit` (from OctoFindNode for the same p). */
+float OctoSample(__global const uint* nodes, __global const ushort* bricks, OctoTreeGeometry g,
+                 OctoNodeHit hit, float3 p, int c) {
+  if (OctoNodeInBuffer(hit.word0)) {
+    return OctoSampleBrick(bricks, g, hit.slot, hit.index, hit.level, p, c);
+  }
+  return OctoNodeAverage(nodes, hit.node, g, c);
+}
+
+#endif /* OCTOSCOPE_KERNELS_OCTREE_SAMPLING_CL_ */
