@@ -1,5 +1,8 @@
 #include "io/volume_stats.h"
 
+#include <sys/mman.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <atomic>
 #include <cmath>
@@ -97,6 +100,17 @@ OCTO_TARGET_CLONES_AVX2 void AccumulateUint16(const std::byte* data,
   AccumulateInts<uint16_t>(data, n, acc);
 }
 
+// Removes the whole pages inside `bytes` (a view into a read-only file mapping) from this
+// process's resident set; later reads fault them back in from the page cache.
+void ReleaseMappedPages(std::span<const std::byte> bytes) {
+  const uintptr_t page = static_cast<uintptr_t>(sysconf(_SC_PAGESIZE));
+  const uintptr_t begin = (reinterpret_cast<uintptr_t>(bytes.data()) + page - 1) & ~(page - 1);
+  const uintptr_t end = (reinterpret_cast<uintptr_t>(bytes.data()) + bytes.size()) & ~(page - 1);
+  if (end > begin) {
+    madvise(reinterpret_cast<void*>(begin), end - begin, MADV_DONTNEED);
+  }
+}
+
 void Accumulate(DataType type, const std::byte* data, size_t n, Accumulator& acc) {
   switch (type) {
     case DataType::kUint8: return AccumulateInts<uint8_t>(data, n, acc);
@@ -189,7 +203,8 @@ Result<VolumeStats> ComputeMappedStats(VolumeSource& source, const StatsOptions&
         const int64_t z = static_cast<int64_t>(i / static_cast<uint64_t>(channels));
         const int c = static_cast<int>(i % static_cast<uint64_t>(channels));
         std::optional<std::span<const std::byte>> plane = source.MappedPlane(c, z);
-        if (!plane || plane->size() != plane_bytes) {
+        const bool mapped = plane && plane->size() == plane_bytes;
+        if (!mapped) {
           buffer.resize(static_cast<size_t>(plane_bytes));
           w.status = source.ReadSlab(c, z, 1, buffer);
           plane = std::span<const std::byte>(buffer);
@@ -197,6 +212,9 @@ Result<VolumeStats> ComputeMappedStats(VolumeSource& source, const StatsOptions&
         if (w.status.ok()) {
           Accumulate(info.dtype, plane->data(), plane_voxels, w.acc[static_cast<size_t>(c)]);
         }
+        // Touched file pages count as our resident memory until unmapped: drop them from this
+        // process (they stay in the OS page cache), so a pass over a huge file keeps RSS flat.
+        if (mapped) ReleaseMappedPages(*plane);
       } catch (const std::bad_alloc&) {
         w.status = ResourceExhaustedError("out of memory reading a plane of " +
                                           std::to_string(plane_bytes) + " bytes");
