@@ -1,10 +1,12 @@
 #include "octree/octree.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstring>
 #include <limits>
 #include <string>
+#include <type_traits>
 #include <utility>
 
 #include "octree/node_encoding.h"
@@ -12,21 +14,6 @@
 
 namespace octoscope::octree {
 namespace {
-
-inline uint16_t LoadSample(const std::byte* p, int bps) {
-  if (bps == 1) return static_cast<uint16_t>(std::to_integer<uint8_t>(*p));
-  uint16_t v;
-  std::memcpy(&v, p, 2);
-  return v;
-}
-
-inline void StoreSample(std::byte* p, int bps, uint16_t v) {
-  if (bps == 1) {
-    *p = static_cast<std::byte>(v);
-  } else {
-    std::memcpy(p, &v, 2);
-  }
-}
 
 // Index of voxel p in a buffer laid out over `box`, x fastest.
 inline size_t BufferIndex(const Box& box, int64_t x, int64_t y, int64_t z) {
@@ -39,6 +26,311 @@ void ForEachIndex(const Box& b, F&& f) {
   for (int64_t z = b.lo[2]; z < b.hi[2]; ++z)
     for (int64_t y = b.lo[1]; y < b.hi[1]; ++y)
       for (int64_t x = b.lo[0]; x < b.hi[0]; ++x) f(Vec3{x, y, z});
+}
+
+// The parts of `a` outside `b`: at most 6 disjoint boxes, cut off along z, then y, then x (so
+// the big pieces are whole planes and rows).
+std::vector<Box> Subtract(const Box& a, const Box& b) {
+  if (a.empty()) return {};
+  const Box common = a.Intersect(b);
+  if (common.empty()) return {a};
+  std::vector<Box> out;
+  Box rest = a;
+  for (int axis = 2; axis >= 0; --axis) {
+    if (rest.lo[axis] < common.lo[axis]) {
+      Box piece = rest;
+      piece.hi[axis] = common.lo[axis];
+      out.push_back(piece);
+      rest.lo[axis] = common.lo[axis];
+    }
+    if (common.hi[axis] < rest.hi[axis]) {
+      Box piece = rest;
+      piece.lo[axis] = common.hi[axis];
+      out.push_back(piece);
+      rest.hi[axis] = common.hi[axis];
+    }
+  }
+  return out;
+}
+
+// --- Row kernels ----------------------------------------------------------------------------
+// The hot loops of construction work on rows: `n` consecutive voxels along x of one channel of
+// a stored brick (samples `stride` = channels apart) or of a uint16 buffer (contiguous). They
+// are templates over a Layout, the stored sample type and — for the common channel counts 1..4 —
+// a compile-time stride, so that the compiler vectorises them; other channel counts use the
+// run-time stride. Brick bytes are accessed as T: the page buffers are std::byte arrays, which
+// implicitly create the sample objects (C++20 [intro.object]).
+
+template <typename T, int kStride>
+struct Layout {
+  using Sample = T;
+  static constexpr int kFixedStride = kStride;  // 0: run-time stride.
+  static size_t Stride(size_t stride) {
+    return kStride > 0 ? static_cast<size_t>(kStride) : stride;
+  }
+};
+
+// Calls f(Layout<T, kStride>{}) for the stored sample type (1 or 2 bytes) and channel count.
+template <typename F>
+decltype(auto) WithLayout(int bytes_per_sample, int channels, F&& f) {
+  auto with_type = [&]<typename T>() -> decltype(auto) {
+    switch (channels) {
+      case 1:
+        return f(Layout<T, 1>{});
+      case 2:
+        return f(Layout<T, 2>{});
+      case 3:
+        return f(Layout<T, 3>{});
+      case 4:
+        return f(Layout<T, 4>{});
+      default:
+        return f(Layout<T, 0>{});
+    }
+  };
+  if (bytes_per_sample == 1) return with_type.template operator()<uint8_t>();
+  return with_type.template operator()<uint16_t>();
+}
+
+// A whole voxel (all channels) as one unsigned word, when that is 2, 4 or 8 bytes: channel c of
+// a voxel is then bits [8 * sizeof(T) * c, +8 * sizeof(T)) of it (little-endian).
+template <typename L>
+using VoxelWord = std::conditional_t<
+    sizeof(typename L::Sample) * L::kFixedStride == 2, uint16_t,
+    std::conditional_t<
+        sizeof(typename L::Sample) * L::kFixedStride == 4, uint32_t,
+        std::conditional_t<sizeof(typename L::Sample) * L::kFixedStride == 8, uint64_t, void>>>;
+static_assert(std::endian::native == std::endian::little, "VoxelWord assumes little-endian");
+
+template <typename L>
+inline void StoreRow(std::byte* brick_row, size_t stride, int c, const uint16_t* __restrict src,
+                     int64_t n) {
+  using T = typename L::Sample;
+  using W = VoxelWord<L>;
+  if constexpr (L::kFixedStride > 1 && !std::is_void_v<W>) {
+    // Interleaved channels: rewrite whole voxels, keeping the other channels' bits. Unlike
+    // scattered sample stores this vectorises, and it moves the same cache lines.
+    W* __restrict dst = reinterpret_cast<W*>(brick_row - c * sizeof(T));
+    const unsigned shift = 8 * sizeof(T) * static_cast<unsigned>(c);
+    const W keep = static_cast<W>(~(static_cast<W>(std::numeric_limits<T>::max()) << shift));
+    for (int64_t x = 0; x < n; ++x) {
+      dst[x] = static_cast<W>((dst[x] & keep) | (static_cast<W>(static_cast<T>(src[x])) << shift));
+    }
+  } else {
+    T* __restrict dst = reinterpret_cast<T*>(brick_row);
+    const size_t s = L::Stride(stride);
+    for (int64_t x = 0; x < n; ++x) dst[x * s] = static_cast<T>(src[x]);
+  }
+}
+
+template <typename L>
+inline void FillRow(std::byte* brick_row, size_t stride, uint16_t value, int64_t n) {
+  using T = typename L::Sample;
+  T* dst = reinterpret_cast<T*>(brick_row);
+  const size_t s = L::Stride(stride);
+  const T v = static_cast<T>(value);
+  for (int64_t x = 0; x < n; ++x) dst[x * s] = v;
+}
+
+template <typename L>
+inline void LoadRow(const std::byte* brick_row, size_t stride, uint16_t* __restrict dst,
+                    int64_t n) {
+  using T = typename L::Sample;
+  const T* __restrict src = reinterpret_cast<const T*>(brick_row);
+  const size_t s = L::Stride(stride);
+  for (int64_t x = 0; x < n; ++x) dst[x] = src[x * s];
+}
+
+// Accumulates min, max and sum of one brick row. The row sum fits 32 bits (n <= kMaxBrickAxis).
+template <typename L>
+inline void ScanRow(const std::byte* brick_row, size_t stride, int64_t n, uint32_t& lo,
+                    uint32_t& hi, uint64_t& sum) {
+  using T = typename L::Sample;
+  const T* src = reinterpret_cast<const T*>(brick_row);
+  const size_t s = L::Stride(stride);
+  T row_lo = std::numeric_limits<T>::max(), row_hi = 0;
+  uint32_t row_sum = 0;
+  for (int64_t x = 0; x < n; ++x) {
+    const T v = src[x * s];
+    row_lo = std::min(row_lo, v);
+    row_hi = std::max(row_hi, v);
+    row_sum += v;
+  }
+  lo = std::min<uint32_t>(lo, row_lo);
+  hi = std::max<uint32_t>(hi, row_hi);
+  sum += row_sum;
+}
+
+// Accumulates min, max and sum of `n` contiguous values (the loop vectorises).
+inline void ScanValues(const uint16_t* values, int64_t n, uint32_t& lo, uint32_t& hi,
+                       uint64_t& sum) {
+  uint16_t row_lo = 0xffff, row_hi = 0;
+  uint32_t row_sum = 0;  // n <= kMaxBrickAxis: fits.
+  for (int64_t x = 0; x < n; ++x) {
+    row_lo = std::min(row_lo, values[x]);
+    row_hi = std::max(row_hi, values[x]);
+    row_sum += values[x];
+  }
+  lo = std::min<uint32_t>(lo, row_lo);
+  hi = std::max<uint32_t>(hi, row_hi);
+  sum += row_sum;
+}
+
+// Where the samples of a stored brick lie: level-L voxel (x, y, z) of channel c is sample
+// (((z - o.z) * sy + (y - o.y)) * sx + (x - o.x)) * channels + c, with o = StoredBox(key).lo
+// (BrickGeometry::StoredSampleOffset, without the per-voxel function call).
+struct BrickLayout {
+  Vec3 origin;
+  int64_t sx, sy;
+  size_t channels;
+  size_t bytes_per_sample;
+
+  BrickLayout(const BrickGeometry& g, const NodeKey& key)
+      : origin(g.StoredBox(key).lo),
+        sx(g.stored_size()[0]),
+        sy(g.stored_size()[1]),
+        channels(static_cast<size_t>(g.channels())),
+        bytes_per_sample(static_cast<size_t>(g.bytes_per_sample())) {}
+  // Byte offset of voxel (x, y, z), channel c. REQUIRES: the voxel lies in the stored box.
+  size_t ByteOffset(int64_t x, int64_t y, int64_t z, int c) const {
+    const int64_t local = ((z - origin[2]) * sy + (y - origin[1])) * sx + (x - origin[0]);
+    return (static_cast<size_t>(local) * channels + static_cast<size_t>(c)) * bytes_per_sample;
+  }
+};
+
+// Writes channel c of `region` (inside the brick's stored box) from `src`, laid out over
+// `src_box` (which contains region). With `stats` (a SampleStats), also accumulates the written
+// values inside `stats_box` (a part of region) into it, row by row while they are in L1.
+template <typename L, typename Stats = std::nullptr_t>
+void WriteBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region, int c,
+                      const uint16_t* src, const Box& src_box, const Box& stats_box = Box{},
+                      Stats* stats = nullptr) {
+  const int64_t n = region.Extent(0);
+  for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
+    for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
+      const uint16_t* row = src + BufferIndex(src_box, region.lo[0], y, z);
+      StoreRow<L>(brick + layout.ByteOffset(region.lo[0], y, z, c), layout.channels, c, row, n);
+      if constexpr (!std::is_same_v<Stats, std::nullptr_t>) {
+        if (stats != nullptr && stats_box.lo[1] <= y && y < stats_box.hi[1] &&
+            stats_box.lo[2] <= z && z < stats_box.hi[2]) {
+          ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), stats->lo,
+                     stats->hi, stats->sum);
+        }
+      }
+    }
+  }
+}
+
+template <typename L>
+void FillBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region, int c,
+                     uint16_t value) {
+  const int64_t n = region.Extent(0);
+  for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
+    for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
+      FillRow<L>(brick + layout.ByteOffset(region.lo[0], y, z, c), layout.channels, value, n);
+    }
+  }
+}
+
+// Initialises EVERY channel of `region` of a new brick in one pass of whole-voxel stores:
+// channel c from `src` (laid out over src_box), the others from uniform[ch]. Accumulates the
+// values of channel c inside `stats_box` (a part of region) into `stats`.
+template <typename L, typename Stats>
+void InitBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region, int c,
+                     const uint16_t* src, const Box& src_box, const uint16_t* uniform,
+                     const Box& stats_box, Stats* stats) {
+  using T = typename L::Sample;
+  constexpr bool kWholeWords = !std::is_void_v<VoxelWord<L>>;
+  using W = std::conditional_t<kWholeWords, VoxelWord<L>, uint64_t>;
+  const int64_t n = region.Extent(0);
+  const int channels = static_cast<int>(layout.channels);
+  W base = 0;
+  if constexpr (kWholeWords) {
+    for (int ch = 0; ch < channels; ++ch) {
+      if (ch != c)
+        base |= static_cast<W>(static_cast<W>(static_cast<T>(uniform[ch])) << (8 * sizeof(T) * ch));
+    }
+  }
+  for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
+    for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
+      const uint16_t* __restrict row = src + BufferIndex(src_box, region.lo[0], y, z);
+      std::byte* voxel_row = brick + layout.ByteOffset(region.lo[0], y, z, 0);
+      if constexpr (kWholeWords) {
+        // Pure stores (nothing to keep), so they need not wait for the old bytes.
+        W* __restrict dst = reinterpret_cast<W*>(voxel_row);
+        const unsigned shift = 8 * sizeof(T) * static_cast<unsigned>(c);
+        for (int64_t x = 0; x < n; ++x) {
+          dst[x] = static_cast<W>(base | (static_cast<W>(static_cast<T>(row[x])) << shift));
+        }
+      } else {
+        T* __restrict dst = reinterpret_cast<T*>(voxel_row);
+        for (int64_t x = 0; x < n; ++x) {
+          for (int ch = 0; ch < channels; ++ch) {
+            dst[x * channels + ch] = static_cast<T>(ch == c ? row[x] : uniform[ch]);
+          }
+        }
+      }
+      if (stats_box.lo[1] <= y && y < stats_box.hi[1] && stats_box.lo[2] <= z &&
+          z < stats_box.hi[2]) {
+        ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), stats->lo,
+                   stats->hi, stats->sum);
+      }
+    }
+  }
+}
+
+// One output row of step 2: out[i] = the rounded mean of the children of parent voxel i, taken
+// from the kRows child rows (1, 2 or 4: the child rows present in y and z) of `child_x` voxels.
+// Every parent has 2 children along x except, when child_x is odd, the last one; so every count
+// n is a power of two and (sum + n/2) / n is a shift.
+template <int kRows>
+void DownsampleRow(const uint16_t* const* rows, int64_t child_x, uint16_t* __restrict out) {
+  constexpr int kShift = kRows == 1 ? 1 : kRows == 2 ? 2 : 3;  // log2(2 * kRows)
+  const uint16_t* __restrict r0 = rows[0];
+  const uint16_t* __restrict r1 = rows[kRows > 1 ? 1 : 0];
+  const uint16_t* __restrict r2 = rows[kRows > 2 ? 2 : 0];
+  const uint16_t* __restrict r3 = rows[kRows > 2 ? 3 : 0];
+  const int64_t pairs = child_x / 2;
+  for (int64_t i = 0; i < pairs; ++i) {
+    uint32_t sum = uint32_t{r0[2 * i]} + r0[2 * i + 1];
+    if constexpr (kRows > 1) sum += uint32_t{r1[2 * i]} + r1[2 * i + 1];
+    if constexpr (kRows > 2) sum += uint32_t{r2[2 * i]} + r2[2 * i + 1] + r3[2 * i] + r3[2 * i + 1];
+    out[i] = static_cast<uint16_t>((sum + (1u << (kShift - 1))) >> kShift);
+  }
+  if (child_x % 2 != 0) {  // The last parent has one child along x: n = kRows.
+    const int64_t x = child_x - 1;
+    uint32_t sum = r0[x];
+    if constexpr (kRows > 1) sum += r1[x];
+    if constexpr (kRows > 2) sum += uint32_t{r2[x]} + r3[x];
+    out[pairs] = static_cast<uint16_t>((sum + kRows / 2) >> (kShift - 1));
+  }
+}
+
+// Step 2 for one level: `out`, laid out over `cover` (level L), gets the integer mean, round half
+// up, of the VALID children of each voxel, read from `children`, laid out over child_box =
+// RefineBox(cover) clipped to the valid extent of level L-1. So child_box.lo = 2 * cover.lo and
+// only the last parent per axis may lack its second child.
+void Downsample(const uint16_t* children, const Box& child_box, const Box& cover, uint16_t* out) {
+  const int64_t cx = child_box.Extent(0), cy = child_box.Extent(1), cz = child_box.Extent(2);
+  const int64_t py = cover.Extent(1), pz = cover.Extent(2), px = cover.Extent(0);
+  for (int64_t z = 0; z < pz; ++z) {
+    const int64_t kz = std::min<int64_t>(2, cz - 2 * z);
+    for (int64_t y = 0; y < py; ++y) {
+      const int64_t ky = std::min<int64_t>(2, cy - 2 * y);
+      const uint16_t* rows[4];
+      int k = 0;
+      for (int64_t dz = 0; dz < kz; ++dz)
+        for (int64_t dy = 0; dy < ky; ++dy)
+          rows[k++] = children + static_cast<size_t>(((2 * z + dz) * cy + 2 * y + dy) * cx);
+      uint16_t* row_out = out + static_cast<size_t>((z * py + y) * px);
+      if (k == 4) {
+        DownsampleRow<4>(rows, cx, row_out);
+      } else if (k == 2) {
+        DownsampleRow<2>(rows, cx, row_out);
+      } else {
+        DownsampleRow<1>(rows, cx, row_out);
+      }
+    }
+  }
 }
 
 }  // namespace
@@ -310,39 +602,69 @@ Result<uint32_t> Octree::EnsureNode(const NodeKey& key) {
   }
 }
 
-Status Octree::AllocateBrick(uint32_t id, const NodeKey& key) {
+Status Octree::AllocateBrick(uint32_t id, const NodeKey& key, int c, const uint16_t* src,
+                             const Box& src_box, Touched* touched) {
   OCTO_ASSIGN_OR_RETURN(uint32_t brick, pool_.Allocate());
-  // The new brick shows exactly what the node showed without it: its interior is the node's
-  // uniform value, its apron the neighbours' current representation (the node itself is not yet
-  // published, so ReadRepresentation returns its uniform value for the interior).
-  const Box stored = geometry_.StoredBox(key);
-  std::vector<uint16_t> values(stored.VoxelCount());
-  {
-    auto handle = pool_.Pin(brick);
-    if (!handle.ok()) {
-      pool_.Free(brick);
-      return handle.status();
-    }
-    for (int c = 0; c < channels_; ++c) {
-      Status st = ReadRepresentation(key.level, stored, c, values.data());
-      if (!st.ok()) {
-        handle->Reset();
-        pool_.Free(brick);
-        return st;
-      }
-      handle->MarkDirty();
-      std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
-      std::span<std::byte> data = handle->data();
-      const int bps = geometry_.bytes_per_sample();
-      const Vec3 s = geometry_.stored_size();
-      size_t i = 0;
-      for (int64_t z = 0; z < s[2]; ++z)
-        for (int64_t y = 0; y < s[1]; ++y)
-          for (int64_t x = 0; x < s[0]; ++x, ++i)
-            StoreSample(data.data() + geometry_.LocalSampleOffset({x, y, z}, c) * bps, bps,
-                        values[i]);
-    }
+  auto handle = pool_.Pin(brick);
+  if (!handle.ok()) {
+    pool_.Free(brick);
+    return handle.status();
   }
+  // The new brick shows exactly what the node showed without it: its interior is the node's
+  // uniform value, its apron the neighbours' current representation, except that channel c of
+  // `written` takes the inserted values. Where the interior is written (for slab inserts most of
+  // the brick) all channels are initialised in one pass of whole-voxel stores; the rest region by
+  // region. One pin covers it all, and the brick is published only when it is complete.
+  const Box stored = geometry_.StoredBox(key);
+  const Box interior = geometry_.NodeBox(key);
+  const Box written = stored.Intersect(src_box);
+  const Box core = written.Intersect(interior);
+  const BrickLayout layout(geometry_, key);
+  std::vector<uint16_t> uniform(channels_);
+  for (int ch = 0; ch < channels_; ++ch) uniform[ch] = Uniform(id, ch);
+  handle->MarkDirty();
+  std::byte* data = handle->data().data();
+  std::vector<uint16_t> apron;
+  Status status = WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) -> Status {
+    using L = decltype(l);
+    for (int ch = 0; ch < channels_; ++ch) {
+      for (const Box& part : Subtract(stored, ch == c ? written : core)) {
+        const Box own = part.Intersect(interior);
+        if (!own.empty()) {
+          std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+          FillBrickRegion<L>(data, layout, own, ch, uniform[ch]);
+        }
+        // The node is not yet published with a brick, so outside its interior this reads the
+        // neighbours (their brick, or their uniform value) and the background.
+        for (const Box& around : Subtract(part, interior)) {
+          apron.resize(around.VoxelCount());
+          OCTO_RETURN_IF_ERROR(ReadRepresentation(key.level, around, ch, apron.data()));
+          std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+          WriteBrickRegion<L>(data, layout, around, ch, apron.data(), around);
+        }
+      }
+    }
+    // Channel c of the written apron.
+    for (const Box& part : Subtract(written, core)) {
+      std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+      WriteBrickRegion<L>(data, layout, part, c, src, src_box);
+    }
+    // The core last: the apron passes above touch the first and last cache line of every row,
+    // which this pass then finds in cache.
+    if (!core.empty()) {
+      std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+      // touched->written (the valid written interior) lies inside core.
+      InitBrickRegion<L>(data, layout, core, c, src, src_box, uniform.data(), touched->written,
+                         &touched->stats);
+    }
+    return Status::Ok();
+  });
+  if (!status.ok()) {
+    handle->Reset();
+    pool_.Free(brick);
+    return status;
+  }
+  handle->Reset();
   {
     std::unique_lock<std::shared_mutex> lock(mu_);
     nodes_[id].brick = brick;
@@ -441,106 +763,115 @@ Status Octree::RefreshAprons(int level, const Box& region) {
 // Voxel access.
 
 Status Octree::PutRegion(uint32_t brick, const NodeKey& key, const Box& region, int c,
-                         const uint16_t* src, const Box& src_box) {
+                         const uint16_t* src, const Box& src_box, Touched* touched) {
   OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
   handle.MarkDirty();
   std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
-  std::byte* data = handle.data().data();
-  const int bps = geometry_.bytes_per_sample();
-  const size_t stride = static_cast<size_t>(channels_) * bps;
-  for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
-    for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
-      std::byte* dst = data + geometry_.StoredByteOffset(key, {region.lo[0], y, z}, c);
-      const uint16_t* s = src + BufferIndex(src_box, region.lo[0], y, z);
-      for (int64_t x = 0; x < region.Extent(0); ++x) StoreSample(dst + x * stride, bps, s[x]);
+  const BrickLayout layout(geometry_, key);
+  WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) {
+    if (touched != nullptr) {
+      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, c, src, src_box,
+                                    touched->written, &touched->stats);
+    } else {
+      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, c, src, src_box);
     }
-  }
+  });
   return Status::Ok();
 }
 
 Status Octree::ReadRepresentation(int level, const Box& box, int c, uint16_t* out) const {
-  std::fill(out, out + box.VoxelCount(), background_[c]);  // Virtual voxels.
   const Box valid = box.Intersect(geometry_.ValidExtent(level));
+  if (valid != box) std::fill(out, out + box.VoxelCount(), background_[c]);  // Virtual voxels.
   if (valid.empty()) return Status::Ok();
   const Box nodes =
       geometry_.NodesIntersecting(level, valid).Intersect(geometry_.NonVirtualNodes(level));
-  const int bps = geometry_.bytes_per_sample();
-  const size_t stride = static_cast<size_t>(channels_) * bps;
-  Status status;
-  ForEachIndex(nodes, [&](const Vec3& index) {
-    if (!status.ok()) return;
-    const NodeKey key{level, index};
-    const Box region = geometry_.NodeBox(key).Intersect(valid);
-    const Located loc = Locate(key);
-    const uint32_t brick = loc.exact ? nodes_[loc.id].brick : 0;
-    if (brick == 0) {
-      const uint16_t u = Uniform(loc.id, c);
-      ForEachIndex(Box{{region.lo[0], region.lo[1], region.lo[2]},
-                       {region.lo[0] + 1, region.hi[1], region.hi[2]}},
-                   [&](const Vec3& p) {
-                     uint16_t* row = out + BufferIndex(box, p[0], p[1], p[2]);
-                     std::fill(row, row + region.Extent(0), u);
-                   });
-      return;
-    }
-    auto handle = pool_.Pin(brick);
-    if (!handle.ok()) {
-      status = handle.status();
-      return;
-    }
-    const std::byte* data = std::as_const(*handle).data().data();
-    for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
-      for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
-        const std::byte* src = data + geometry_.StoredByteOffset(key, {region.lo[0], y, z}, c);
-        uint16_t* dst = out + BufferIndex(box, region.lo[0], y, z);
-        for (int64_t x = 0; x < region.Extent(0); ++x) dst[x] = LoadSample(src + x * stride, bps);
+  return WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) -> Status {
+    using L = decltype(l);
+    for (int64_t iz = nodes.lo[2]; iz < nodes.hi[2]; ++iz) {
+      for (int64_t iy = nodes.lo[1]; iy < nodes.hi[1]; ++iy) {
+        for (int64_t ix = nodes.lo[0]; ix < nodes.hi[0]; ++ix) {
+          const NodeKey key{level, {ix, iy, iz}};
+          const Box region = geometry_.NodeBox(key).Intersect(valid);
+          const int64_t n = region.Extent(0);
+          const Located loc = Locate(key);
+          const uint32_t brick = loc.exact ? nodes_[loc.id].brick : 0;
+          if (brick == 0) {
+            // The node (or its deepest existing ancestor) shows its uniform value.
+            const uint16_t u = Uniform(loc.id, c);
+            for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
+              for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
+                uint16_t* row = out + BufferIndex(box, region.lo[0], y, z);
+                std::fill(row, row + n, u);
+              }
+            }
+            continue;
+          }
+          OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
+          const std::byte* data = std::as_const(handle).data().data();
+          const BrickLayout layout(geometry_, key);
+          for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
+            for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
+              LoadRow<L>(data + layout.ByteOffset(region.lo[0], y, z, c), layout.channels,
+                         out + BufferIndex(box, region.lo[0], y, z), n);
+            }
+          }
+        }
       }
     }
+    return Status::Ok();
   });
-  return status;
 }
 
-Status Octree::WriteLevel(int level, const Box& box, int c, const std::vector<uint16_t>& values,
-                          std::vector<uint32_t>* touched) {
+Status Octree::WriteLevel(int level, const Box& box, int c, const uint16_t* values,
+                          std::vector<Touched>* touched) {
   const Box nodes =
       geometry_.NodesStoringAny(level, box).Intersect(geometry_.NonVirtualNodes(level));
-  Status status;
-  ForEachIndex(nodes, [&](const Vec3& index) {
-    if (!status.ok()) return;
-    const NodeKey key{level, index};
-    const Box interior = geometry_.NodeBox(key).Intersect(box);
-    uint32_t id;
-    if (!interior.empty()) {
-      auto ensured = EnsureNode(key);
-      if (!ensured.ok()) {
-        status = ensured.status();
-        return;
+  for (int64_t iz = nodes.lo[2]; iz < nodes.hi[2]; ++iz) {
+    for (int64_t iy = nodes.lo[1]; iy < nodes.hi[1]; ++iy) {
+      for (int64_t ix = nodes.lo[0]; ix < nodes.hi[0]; ++ix) {
+        const NodeKey key{level, {ix, iy, iz}};
+        const Box interior = geometry_.NodeBox(key).Intersect(box);
+        const Box part = geometry_.StoredBox(key).Intersect(box);
+        if (interior.empty()) {
+          // Only the apron of this node overlaps: update it if the node exists with a brick.
+          const Located loc = Locate(key);
+          if (!loc.exact || nodes_[loc.id].brick == 0) continue;
+          OCTO_RETURN_IF_ERROR(PutRegion(nodes_[loc.id].brick, key, part, c, values, box));
+          changes_.Append(loc.id, NodeChangeKind::kUpdated);
+          continue;
+        }
+        OCTO_ASSIGN_OR_RETURN(const uint32_t id, EnsureNode(key));
+        if (level == 0) MarkLeafWritten(id, key, interior, c);
+        if (nodes_[id].brick == 0) {
+          // Without a brick the node shows its uniform value; only a different value needs
+          // one, and the new brick then receives the values as it is initialised.
+          const uint16_t u = Uniform(id, c);
+          bool differs = false;
+          const int64_t n = interior.Extent(0);
+          for (int64_t z = interior.lo[2]; z < interior.hi[2] && !differs; ++z) {
+            for (int64_t y = interior.lo[1]; y < interior.hi[1] && !differs; ++y) {
+              const uint16_t* row = values + BufferIndex(box, interior.lo[0], y, z);
+              differs = std::any_of(row, row + n, [u](uint16_t v) { return v != u; });
+            }
+          }
+          if (!differs) {
+            touched->push_back(Touched{id, Box{}, SampleStats{}});
+            continue;
+          }
+        }
+        // The statistics of the written valid interior are gathered as it is written.
+        Touched t{id, geometry_.ValidBox(key).Intersect(box), SampleStats{}};
+        if (nodes_[id].brick == 0) {
+          OCTO_RETURN_IF_ERROR(AllocateBrick(id, key, c, values, box, &t));
+        } else {
+          OCTO_RETURN_IF_ERROR(PutRegion(nodes_[id].brick, key, part, c, values, box, &t));
+          changes_.Append(id, NodeChangeKind::kUpdated);
+        }
+        touched->push_back(t);
       }
-      id = *ensured;
-      touched->push_back(id);
-      if (level == 0) MarkLeafWritten(id, key, interior, c);
-      if (nodes_[id].brick == 0) {
-        // Without a brick the node shows its uniform value; only a different value needs one.
-        const uint16_t u = Uniform(id, c);
-        bool differs = false;
-        ForEachIndex(interior, [&](const Vec3& p) {
-          differs = differs || values[BufferIndex(box, p[0], p[1], p[2])] != u;
-        });
-        if (!differs) return;
-        status = AllocateBrick(id, key);
-        if (!status.ok()) return;
-      }
-    } else {
-      // Only the apron of this node overlaps: update it if the node exists with a brick.
-      const Located loc = Locate(key);
-      if (!loc.exact || nodes_[loc.id].brick == 0) return;
-      id = loc.id;
     }
-    const Box part = geometry_.StoredBox(key).Intersect(box);
-    status = PutRegion(nodes_[id].brick, key, part, c, values.data(), box);
-    changes_.Append(id, NodeChangeKind::kUpdated);
-  });
-  return status;
+  }
+  return Status::Ok();
 }
 
 void Octree::MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, int c) {
@@ -569,29 +900,32 @@ void Octree::MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, in
 }
 
 // Step 3 for one node: statistics of channel c, completeness, pruning.
-Status Octree::UpdateNode(uint32_t id, int c) {
+Status Octree::UpdateNode(const Touched& touched, int c) {
+  const uint32_t id = touched.id;
   if ((nodes_[id].flags & kLive) == 0) return Status::Ok();  // Deleted by an ancestor meanwhile.
   const NodeKey key = KeyOf(id);
   ChannelStats s = Stat(id, c);
   const uint32_t brick = nodes_[id].brick;
   if (brick != 0) {
+    // The written part's statistics are known; scan only the rest of the valid interior.
     const Box valid = geometry_.ValidBox(key);
-    OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
-    const std::byte* data = std::as_const(handle).data().data();
-    const int bps = geometry_.bytes_per_sample();
-    const size_t stride = static_cast<size_t>(channels_) * bps;
-    uint32_t lo = 65535, hi = 0;
-    uint64_t sum = 0;
-    for (int64_t z = valid.lo[2]; z < valid.hi[2]; ++z) {
-      for (int64_t y = valid.lo[1]; y < valid.hi[1]; ++y) {
-        const std::byte* row = data + geometry_.StoredByteOffset(key, {valid.lo[0], y, z}, c);
-        for (int64_t x = 0; x < valid.Extent(0); ++x) {
-          const uint32_t v = LoadSample(row + x * stride, bps);
-          lo = std::min(lo, v);
-          hi = std::max(hi, v);
-          sum += v;
+    uint32_t lo = touched.stats.lo, hi = touched.stats.hi;
+    uint64_t sum = touched.stats.sum;
+    const std::vector<Box> rest = Subtract(valid, touched.written);
+    if (!rest.empty()) {
+      OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
+      const std::byte* data = std::as_const(handle).data().data();
+      const BrickLayout layout(geometry_, key);
+      WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) {
+        for (const Box& r : rest) {
+          for (int64_t z = r.lo[2]; z < r.hi[2]; ++z) {
+            for (int64_t y = r.lo[1]; y < r.hi[1]; ++y) {
+              ScanRow<decltype(l)>(data + layout.ByteOffset(r.lo[0], y, z, c), layout.channels,
+                                   r.Extent(0), lo, hi, sum);
+            }
+          }
         }
-      }
+      });
     }
     s.min = static_cast<uint16_t>(lo);
     s.max = static_cast<uint16_t>(hi);
@@ -662,47 +996,55 @@ Status Octree::Insert(int channel, const Box& box, std::span<const std::byte> da
                                 std::to_string(data.size()));
   }
   std::lock_guard<std::mutex> insert_lock(insert_mu_);
-  std::vector<uint16_t> values(voxels);
-  for (uint64_t i = 0; i < voxels; ++i) values[i] = LoadSample(data.data() + i * bps, bps);
+  // The block as uint16 samples. 16-bit data is used in place when it is aligned.
+  std::vector<uint16_t> level_values;
+  const uint16_t* values;
+  if (bps == 2 && reinterpret_cast<uintptr_t>(data.data()) % alignof(uint16_t) == 0) {
+    values = reinterpret_cast<const uint16_t*>(data.data());
+  } else {
+    level_values.resize(voxels);
+    if (bps == 2) {
+      std::memcpy(level_values.data(), data.data(), data.size());
+    } else {
+      const auto* bytes = reinterpret_cast<const uint8_t*>(data.data());
+      std::copy(bytes, bytes + voxels, level_values.begin());
+    }
+    values = level_values.data();
+  }
 
   const int root = geometry_.root_level();
-  std::vector<std::vector<uint32_t>> touched(root + 1);
+  std::vector<std::vector<Touched>> touched(root + 1);
   // Step 1: the leaves.
   OCTO_RETURN_IF_ERROR(WriteLevel(0, box, channel, values, &touched[0]));
-  // Step 2: the path to the root, one level at a time.
+  // Step 2: the path to the root, one level at a time. `values` holds level L-1 over `dirty`.
   Box dirty = box;
-  std::vector<uint16_t> children;
+  std::vector<uint16_t> children, parents;
   for (int level = 1; level <= root; ++level) {
     const Box cover = CoarsenBox(dirty).Intersect(geometry_.ValidExtent(level));
     const Box child_box = RefineBox(cover).Intersect(geometry_.ValidExtent(level - 1));
-    children.resize(child_box.VoxelCount());
-    OCTO_RETURN_IF_ERROR(ReadRepresentation(level - 1, child_box, channel, children.data()));
-    values.assign(cover.VoxelCount(), 0);
-    size_t i = 0;
-    for (int64_t z = cover.lo[2]; z < cover.hi[2]; ++z) {
-      for (int64_t y = cover.lo[1]; y < cover.hi[1]; ++y) {
-        for (int64_t x = cover.lo[0]; x < cover.hi[0]; ++x, ++i) {
-          // Mean of the VALID children (child_box is clipped to the valid extent).
-          const Box group =
-              Box{{2 * x, 2 * y, 2 * z}, {2 * x + 2, 2 * y + 2, 2 * z + 2}}.Intersect(child_box);
-          uint64_t sum = 0;
-          ForEachIndex(group, [&](const Vec3& p) {
-            sum += children[BufferIndex(child_box, p[0], p[1], p[2])];
-          });
-          const uint64_t n = group.VoxelCount();
-          values[i] = static_cast<uint16_t>((sum + n / 2) / n);
-        }
-      }
+    const uint16_t* child_values = values;
+    if (child_box != dirty) {
+      // The cover's children reach beyond what was just written: read them all back. (When
+      // they coincide, the level's representation over `dirty` is exactly `values`.)
+      children.resize(child_box.VoxelCount());
+      OCTO_RETURN_IF_ERROR(ReadRepresentation(level - 1, child_box, channel, children.data()));
+      child_values = children.data();
     }
-    OCTO_RETURN_IF_ERROR(WriteLevel(level, cover, channel, values, &touched[level]));
+    parents.resize(cover.VoxelCount());
+    Downsample(child_values, child_box, cover, parents.data());
+    OCTO_RETURN_IF_ERROR(WriteLevel(level, cover, channel, parents.data(), &touched[level]));
+    level_values.swap(parents);  // Keeps `values` alive; `parents` is reused next level.
+    values = level_values.data();
     dirty = cover;
   }
   // Step 3: statistics, completeness and pruning, bottom-up so children are final first.
   for (int level = 0; level <= root; ++level) {
-    std::vector<uint32_t>& ids = touched[level];
-    std::sort(ids.begin(), ids.end());
-    ids.erase(std::unique(ids.begin(), ids.end()), ids.end());
-    for (uint32_t id : ids) OCTO_RETURN_IF_ERROR(UpdateNode(id, channel));
+    // Each node is written at most once per level and insert; ascending ids keep the order
+    // of pruning (and so brick id reuse) deterministic.
+    std::vector<Touched>& nodes = touched[level];
+    std::sort(nodes.begin(), nodes.end(),
+              [](const Touched& a, const Touched& b) { return a.id < b.id; });
+    for (const Touched& t : nodes) OCTO_RETURN_IF_ERROR(UpdateNode(t, channel));
   }
   return Status::Ok();
 }

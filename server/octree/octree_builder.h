@@ -7,6 +7,8 @@
 // calling thread inserts finished slabs into the octree. Octree::Insert serialises inserts, and
 // the final structure does not depend on insertion order, so slabs are inserted as they arrive.
 // At most `2 * threads` slabs exist at once: memory is bounded by the slab size, never the file.
+// Slab buffers are recycled (a fresh buffer costs a page fault per 4 KiB), and when the value
+// map is the identity the slab as read is inserted without a converted copy.
 //
 // Thread safety: Build() is called from one thread; it starts and always joins its readers.
 #ifndef OCTOSCOPE_OCTREE_OCTREE_BUILDER_H_
@@ -24,7 +26,7 @@
 namespace octoscope::octree {
 
 struct BuildProgress {
-  uint64_t planes_done = 0;   // (z plane, channel) pairs inserted.
+  uint64_t planes_done = 0;  // (z plane, channel) pairs inserted.
   uint64_t planes_total = 0;
   uint64_t source_bytes_done = 0;  // Bytes of the source's own type inserted.
 };
