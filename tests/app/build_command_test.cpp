@@ -1,7 +1,7 @@
 // End-to-end tests of `octoscope build`: statistics, reuse of a complete cache, and crash safety
 // (a build SIGKILLed at any point leaves a cache that is detected as incomplete and rebuilt).
-#include <gtest/gtest.h>
 #include <fcntl.h>
+#include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -21,8 +21,11 @@ class BuildCommandTest : public ::testing::Test {
   void SetUp() override {
     dir_ = testing::MakeTempDir("build");
     input_ = dir_ / "demo-embryo.ome.tif";
-    ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) + " --size 70,52,40 --channels 2"
-                           " --compression deflate").exit_code, 0);
+    ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) +
+                           " --size 70,52,40 --channels 2"
+                           " --compression deflate")
+                  .exit_code,
+              0);
   }
   void TearDown() override { fs::remove_all(dir_); }
 
@@ -31,8 +34,9 @@ class BuildCommandTest : public ::testing::Test {
     std::string env = kill_after >= 0
                           ? "OCTOSCOPE_TEST_KILL_AFTER_PLANES=" + std::to_string(kill_after) + " "
                           : "";
-    return RunOctoscope("build " + Quote(input_) + " --cache " + Quote(cache) +
-                        " --brick 16 --ram-mb 64 " + extra, env);
+    return RunOctoscope(
+        "build " + Quote(input_) + " --cache " + Quote(cache) + " --brick 16 --ram-mb 64 " + extra,
+        env);
   }
 
   static nlohmann::json Parse(const RunResult& r) { return nlohmann::json::parse(r.out); }
@@ -108,8 +112,8 @@ TEST_F(BuildCommandTest, AsynchronousSigkillNeverLeavesACompleteLookingCache) {
       dup2(null_fd, 1);
       dup2(null_fd, 2);
       const std::string in = input_.string(), out = cache.string();
-      execl(OCTOSCOPE_BINARY, "octoscope", "build", in.c_str(), "--cache", out.c_str(),
-            "--brick", "16", "--ram-mb", "64", static_cast<char*>(nullptr));
+      execl(OCTOSCOPE_BINARY, "octoscope", "build", in.c_str(), "--cache", out.c_str(), "--brick",
+            "16", "--ram-mb", "64", static_cast<char*>(nullptr));
       _exit(127);
     }
     std::this_thread::sleep_for(std::chrono::milliseconds(delay_ms));
@@ -131,15 +135,19 @@ TEST_F(BuildCommandTest, ChangedSourceParametersOrManifestRebuild) {
   EXPECT_NE(j["rebuild_reason"].get<std::string>().find("unreadable manifest"), std::string::npos);
   // A different scan under the same name.
   ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) + " --size 70,52,40 --channels 2 --seed 9")
-                .exit_code, 0);
+                .exit_code,
+            0);
   EXPECT_EQ(Parse(Build(dir_ / "cache", "--threshold 0"))["rebuild_reason"], "source changed");
 }
 
 TEST_F(BuildCommandTest, VolumeFourTimesTheBudgetStaysWithinBudgetPlusOverhead) {
   // 256 x 256 x 256 x 2 channels x 2 bytes = 64 MiB of voxels (and an 84 MiB pool) under a 16 MiB
   // budget: out of core for real. docs/cli.md promises peak RSS <= budget + 24 MiB + node table.
-  ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) + " --name big --size 256,256,256"
-                         " --channels 2 --compression none").exit_code, 0);
+  ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) +
+                         " --name big --size 256,256,256"
+                         " --channels 2 --compression none")
+                .exit_code,
+            0);
   RunResult r = RunOctoscope("build " + Quote(dir_ / "big.ome.tif") + " --cache " +
                              Quote(dir_ / "big-cache") + " --brick 32 --ram-mb 16");
   ASSERT_EQ(r.exit_code, 0) << r.err;
@@ -163,12 +171,12 @@ TEST_F(BuildCommandTest, BudgetTooSmallForTheBricksIsAClearError) {
 }
 
 TEST_F(BuildCommandTest, BadInputAndUsage) {
-  RunResult missing = RunOctoscope("build " + Quote(dir_ / "nope.tif") + " --cache " +
-                                   Quote(dir_ / "c"));
+  RunResult missing =
+      RunOctoscope("build " + Quote(dir_ / "nope.tif") + " --cache " + Quote(dir_ / "c"));
   EXPECT_EQ(missing.exit_code, 2);
   EXPECT_NE(missing.err.find("nope.tif"), std::string::npos);
   EXPECT_EQ(RunOctoscope("build " + Quote(input_)).exit_code, 64);  // --cache missing.
-  EXPECT_EQ(Build(dir_ / "c", "--brick 15").exit_code, 64);       // Odd brick.
+  EXPECT_EQ(Build(dir_ / "c", "--brick 15").exit_code, 64);         // Odd brick.
   EXPECT_EQ(Build(dir_ / "c", "--threshold 2").exit_code, 64);
   EXPECT_EQ(Build(dir_ / "c", "--ram-mb 8").exit_code, 64);
 }

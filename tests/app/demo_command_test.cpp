@@ -14,7 +14,8 @@ TEST(DemoCommandTest, WritesASpecimenThatReadsBackWithTheGeneratorsStatistics) {
   fs::path dir = testing::MakeTempDir("demo");
   RunResult demo = RunOctoscope("demo --out " + Quote(dir / "sub") +
                                 " --size 40,30,12 --channels 4 --seed 7 --compression zstd"
-                                " --name embryo --stats-json " + Quote(dir / "reference.json"));
+                                " --name embryo --stats-json " +
+                                Quote(dir / "reference.json"));
   ASSERT_EQ(demo.exit_code, 0) << demo.err;
   EXPECT_EQ(demo.out, (dir / "sub" / "embryo.ome.tif").string() + "\n");
   RunResult info = RunOctoscope("info --json --stats " + Quote(dir / "sub" / "embryo.ome.tif"));
@@ -25,8 +26,8 @@ TEST(DemoCommandTest, WritesASpecimenThatReadsBackWithTheGeneratorsStatistics) {
   EXPECT_EQ(got["size"], nlohmann::json({40, 30, 12}));
   EXPECT_EQ(got["channels"], 4);
   EXPECT_EQ(got["channel_names"][0], "nuclei");
-  for (const char* key : {"size", "channel_names", "channel_colors", "dtype", "spacing", "min",
-                          "max", "mean"}) {
+  for (const char* key :
+       {"size", "channel_names", "channel_colors", "dtype", "spacing", "min", "max", "mean"}) {
     EXPECT_EQ(got[key], reference[key]) << key;
   }
   // Background is dark, nuclei reach far above it.
@@ -38,8 +39,10 @@ TEST(DemoCommandTest, WritesASpecimenThatReadsBackWithTheGeneratorsStatistics) {
 TEST(DemoCommandTest, SameSeedSameBytes) {
   fs::path dir = testing::MakeTempDir("demo-seed");
   for (const char* name : {"a", "b"}) {
-    ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir) + " --size 16,16,4 --compression none --name " +
-                           name).exit_code, 0);
+    ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir) +
+                           " --size 16,16,4 --compression none --name " + name)
+                  .exit_code,
+              0);
   }
   std::ifstream a(dir / "a.ome.tif", std::ios::binary), b(dir / "b.ome.tif", std::ios::binary);
   std::string bytes_a((std::istreambuf_iterator<char>(a)), {});

@@ -33,12 +33,12 @@ TEST(FlagsTest, DefaultsWhenAbsent) {
 }
 
 TEST(FlagsTest, RejectsMistakes) {
-  for (std::vector<std::string> args : std::vector<std::vector<std::string>>{
-           {"in.tif", "--bogus"},         // Unknown flag.
-           {"in.tif", "--series"},        // Missing value.
-           {"in.tif", "--json=yes"},      // Switch with value.
-           {},                            // Missing positional.
-           {"a.tif", "b.tif"}}) {         // Too many positionals.
+  for (std::vector<std::string> args :
+       std::vector<std::vector<std::string>>{{"in.tif", "--bogus"},     // Unknown flag.
+                                             {"in.tif", "--series"},    // Missing value.
+                                             {"in.tif", "--json=yes"},  // Switch with value.
+                                             {},                        // Missing positional.
+                                             {"a.tif", "b.tif"}}) {     // Too many positionals.
     Flags flags = MakeFlags();
     EXPECT_FALSE(flags.Parse(args).ok()) << args.size();
   }
@@ -59,7 +59,8 @@ TEST(FlagsTest, HelpListsEveryFlag) {
   ASSERT_TRUE(flags.Parse(args).ok());
   EXPECT_TRUE(flags.help_requested());
   std::string help = flags.Help();
-  for (const char* word : {"usage: tool INPUT", "--json", "--series N", "(default: 0)", "--scale F"}) {
+  for (const char* word :
+       {"usage: tool INPUT", "--json", "--series N", "(default: 0)", "--scale F"}) {
     EXPECT_NE(help.find(word), std::string::npos) << word;
   }
 }

@@ -20,7 +20,8 @@ namespace fs = std::filesystem;
 const fs::path kTestdata(OCTOSCOPE_TESTDATA);
 
 TEST(InfoCommandTest, JsonForImageJHyperstack) {
-  RunResult r = RunOctoscope("info --json " + Quote(kTestdata / "neubias/xyzc_16bit__dna_conf_wf.tif"));
+  RunResult r =
+      RunOctoscope("info --json " + Quote(kTestdata / "neubias/xyzc_16bit__dna_conf_wf.tif"));
   ASSERT_EQ(r.exit_code, 0) << r.err;
   auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["format"], "imagej-tiff");
@@ -68,7 +69,8 @@ TEST(InfoCommandTest, StatsMatchValuesWrittenByTheTest) {
 }
 
 TEST(InfoCommandTest, HumanReadableOutputAndSpacingOverride) {
-  RunResult r = RunOctoscope("info --spacing -,-,7.5 " + Quote(kTestdata / "neubias/xyzc_16bit__spots.tif"));
+  RunResult r =
+      RunOctoscope("info --spacing -,-,7.5 " + Quote(kTestdata / "neubias/xyzc_16bit__spots.tif"));
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("89 x 88 x 17"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("x 7.5 µm"), std::string::npos) << r.out;

@@ -24,7 +24,8 @@ struct RunResult {
 // Runs the octoscope binary with `args` (shell-quoted by the caller), capturing both streams.
 // `env` ("NAME=value ") is put before the command. Exit code -1 when killed by a signal.
 inline RunResult RunOctoscope(const std::string& args, const std::string& env = "") {
-  fs::path err_file = fs::temp_directory_path() / ("octoscope-test-stderr-" + std::to_string(getpid()));
+  fs::path err_file =
+      fs::temp_directory_path() / ("octoscope-test-stderr-" + std::to_string(getpid()));
   std::string command = env;
   command.append(OCTOSCOPE_BINARY).append(" ").append(args).append(" 2>").append(err_file.string());
   RunResult result;

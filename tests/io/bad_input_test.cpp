@@ -41,7 +41,8 @@ Status OpenAndReadAll(const fs::path& path) {
   if (info.VoxelBytes() > (256u << 20)) return Status::Ok();
   std::vector<std::byte> slab((*source)->SlabBytes(1));
   for (int c = 0; c < info.channel_count(); ++c) {
-    for (int64_t z = 0; z < info.size[2]; ++z) OCTO_RETURN_IF_ERROR((*source)->ReadSlab(c, z, 1, slab));
+    for (int64_t z = 0; z < info.size[2]; ++z)
+      OCTO_RETURN_IF_ERROR((*source)->ReadSlab(c, z, 1, slab));
   }
   return Status::Ok();
 }
@@ -59,7 +60,8 @@ std::vector<fs::path> FilesIn(const fs::path& dir) {
   std::vector<fs::path> files;
   if (!fs::is_directory(dir)) return files;
   for (const auto& entry : fs::recursive_directory_iterator(dir)) {
-    if (entry.is_regular_file() && entry.path().filename() != "README.md") files.push_back(entry.path());
+    if (entry.is_regular_file() && entry.path().filename() != "README.md")
+      files.push_back(entry.path());
   }
   return files;
 }
@@ -95,10 +97,10 @@ TEST(BadInputTest, EmptyAndNonTiffFilesGiveClearErrors) {
 TEST(BadInputTest, MutatedRealFilesAreSafe) {
   const fs::path testdata(OCTOSCOPE_TESTDATA);
   std::vector<fs::path> originals = {
-      testdata / "neubias/xyzc_16bit__spots.tif",        // ImageJ, big-endian.
-      testdata / "ome_samples/z-series.ome.tif",         // OME-TIFF, int8.
+      testdata / "neubias/xyzc_16bit__spots.tif",              // ImageJ, big-endian.
+      testdata / "ome_samples/z-series.ome.tif",               // OME-TIFF, int8.
       testdata / "real_ometiff_misc/ScanImageBigTIFFv57.tif",  // BigTIFF.
-      testdata / "ndev_bigtiff_ome/neuron-4Ch.tiff",     // BigTIFF + OME + deflate.
+      testdata / "ndev_bigtiff_ome/neuron-4Ch.tiff",           // BigTIFF + OME + deflate.
   };
   fs::path dir = testing::MakeTempDir("mutations");
   std::mt19937 rng(12345);
@@ -122,12 +124,11 @@ TEST(BadInputTest, MutatedRealFilesAreSafe) {
           m.resize(rng() % m.size());
           break;
         case 2:  // Stomp a 4-byte field anywhere with an extreme value.
-          {
-            size_t at = rng() % (m.size() - 4);
-            uint32_t v = (rng() % 2) ? 0xffffffffu : 0x7fffffffu;
-            std::memcpy(&m[at], &v, 4);
-          }
-          break;
+        {
+          size_t at = rng() % (m.size() - 4);
+          uint32_t v = (rng() % 2) ? 0xffffffffu : 0x7fffffffu;
+          std::memcpy(&m[at], &v, 4);
+        } break;
         case 3:  // Flip bits anywhere (IFDs at the end, OME-XML, pixel data).
           for (int i = 0; i < 16; ++i) {
             size_t at = rng() % m.size();
@@ -135,7 +136,8 @@ TEST(BadInputTest, MutatedRealFilesAreSafe) {
           }
           break;
       }
-      fs::path mutant = dir / ("mutant-" + std::to_string(mutants++) + "-" + original.filename().string());
+      fs::path mutant =
+          dir / ("mutant-" + std::to_string(mutants++) + "-" + original.filename().string());
       WriteAll(mutant, m);
       SCOPED_TRACE(mutant.string());
       ExpectSafe(mutant);

@@ -311,7 +311,8 @@ TEST(SyntheticEmbryoTest, SmallEmbryoLeavesMostOfTheBoxBackground) {
   for (int z = 0; z < 32; ++z)
     for (int y = 0; y < 64; ++y)
       for (int x = 0; x < 64; ++x) {
-        const double dx = (x + 0.5) / 64 - 0.5, dy = (y + 0.5) / 64 - 0.5, dz = (z + 0.5) / 32 - 0.5;
+        const double dx = (x + 0.5) / 64 - 0.5, dy = (y + 0.5) / 64 - 0.5,
+                     dz = (z + 0.5) / 32 - 0.5;
         if (dx * dx + dy * dy + dz * dz < 0.25 * 0.25) continue;
         ++outside;
         if (slab[(static_cast<size_t>(z) * 64 + y) * 64 + x] > 250) ++bright_outside;

@@ -27,89 +27,28 @@ namespace octoscope::io {
 namespace {
 
 namespace fs = std::filesystem;
+using octoscope::testing::ContainerName;
+using octoscope::testing::CountMismatches;
+using octoscope::testing::CrossCases;
+using octoscope::testing::ExpectErrorNaming;
+using octoscope::testing::FixtureCase;
+using octoscope::testing::FixtureCompression;
+using octoscope::testing::FixtureRoundTrip;
+using octoscope::testing::FixtureSamples;
 using octoscope::testing::MakeTempDir;
+using octoscope::testing::PatternFor;
+using octoscope::testing::PatternOf;
+using octoscope::testing::ReadAll;
+using octoscope::testing::Regression;
+using octoscope::testing::SampleBytes;
 using octoscope::testing::TiffFixtureSpec;
+using octoscope::testing::TiffFixtureTest;
+using octoscope::testing::WriteAll;
 using octoscope::testing::WriteTiffFixture;
 using volume::DataType;
 
 // ---------------------------------------------------------------------------------------------
-// Values written and expected.
-
-// Integers exercise all 32 bits (and signs, once narrowed); floats get fractions and negatives.
-double PatternFor(DataType type, uint32_t x, uint32_t y, int page, int sample) {
-  const uint64_t base =
-      uint64_t{x} * 7 + uint64_t{y} * 131 + uint64_t(page) * 1031 + uint64_t(sample) * 15013;
-  if (volume::IsFloat(type)) return static_cast<double>(base % 65536) * 0.37 - 5000.5;
-  return static_cast<double>((base * 65599u) % 4294967296u);
-}
-
-// The bytes (native order) the fixture stores for `v`, with the same casts it uses.
-std::array<std::byte, 8> SampleBytes(double v, DataType type) {
-  std::array<std::byte, 8> out{};
-  auto put = [&](auto x) { std::memcpy(out.data(), &x, sizeof(x)); };
-  switch (type) {
-    case DataType::kUint8:
-      put(static_cast<uint8_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kUint16:
-      put(static_cast<uint16_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kUint32:
-      put(static_cast<uint32_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kInt8:
-      put(static_cast<int8_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kInt16:
-      put(static_cast<int16_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kInt32:
-      put(static_cast<int32_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kFloat32:
-      put(static_cast<float>(v));
-      break;
-    case DataType::kFloat64:
-      put(v);
-      break;
-  }
-  return out;
-}
-
-// Compares a decoded plane with the pattern; returns the number of wrong voxels (reports the
-// first few).
-int CountMismatches(std::span<const std::byte> plane, DataType type, uint32_t width,
-                    uint32_t height, int page, int sample) {
-  const size_t bytes = volume::BytesPerSample(type);
-  int wrong = 0;
-  for (uint32_t y = 0; y < height; ++y) {
-    for (uint32_t x = 0; x < width; ++x) {
-      const auto want = SampleBytes(PatternFor(type, x, y, page, sample), type);
-      const std::byte* got = plane.data() + (uint64_t{y} * width + x) * bytes;
-      if (std::memcmp(got, want.data(), bytes) != 0) {
-        if (++wrong <= 3) {
-          ADD_FAILURE() << "voxel x=" << x << " y=" << y << " page=" << page << " sample=" << sample
-                        << " differs";
-        }
-      }
-    }
-  }
-  return wrong;
-}
-
-// ---------------------------------------------------------------------------------------------
 // Byte-level helpers for patching classic TIFF files (either byte order).
-
-std::vector<uint8_t> ReadAll(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
-void WriteAll(const fs::path& path, const std::vector<uint8_t>& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(bytes.data()),
-            static_cast<std::streamsize>(bytes.size()));
-}
 
 bool BigEndian(const std::vector<uint8_t>& b) { return b[0] == 'M'; }
 
@@ -162,32 +101,10 @@ uint32_t EntryValue(const std::vector<uint8_t>& b, size_t ifd, uint16_t tag) {
   return Get(b, e + 2, 2) == TIFF_SHORT ? Get(b, e + 8, 2) : Get(b, e + 8, 4);
 }
 
-void ExpectErrorNaming(const Status& status, const fs::path& path) {
-  EXPECT_FALSE(status.ok());
-  EXPECT_NE(status.message().find(path.string()), std::string::npos) << status.ToString();
-}
-
 // ---------------------------------------------------------------------------------------------
 // Round trips over every layout that matters.
 
-struct TypeCase {
-  const char* name;
-  uint16_t bits, format;
-  DataType dtype;
-};
-constexpr TypeCase kTypes[] = {
-    {"u8", 8, 1, DataType::kUint8},     {"i8", 8, 2, DataType::kInt8},
-    {"u16", 16, 1, DataType::kUint16},  {"i16", 16, 2, DataType::kInt16},
-    {"u32", 32, 1, DataType::kUint32},  {"i32", 32, 2, DataType::kInt32},
-    {"f32", 32, 3, DataType::kFloat32}, {"f64", 64, 3, DataType::kFloat64},
-};
-
-struct CompressionCase {
-  const char* name;
-  uint16_t compression;
-  bool predictor;  // Horizontal (2) for integers, floating point (3) for floats.
-};
-constexpr CompressionCase kCompressions[] = {
+constexpr FixtureCompression kCompressions[] = {
     {"none", COMPRESSION_NONE, false},
     {"lzw", COMPRESSION_LZW, false},
     {"lzwpred", COMPRESSION_LZW, true},
@@ -200,85 +117,41 @@ constexpr CompressionCase kCompressions[] = {
     {"lzma", COMPRESSION_LZMA, false},
 };
 
-struct SampleCase {
-  const char* name;
-  uint16_t samples, planar;
-};
-constexpr SampleCase kSamples[] = {
+constexpr FixtureSamples kSamples[] = {
     {"s1", 1, PLANARCONFIG_CONTIG},        {"chunky2", 2, PLANARCONFIG_CONTIG},
     {"planar3", 3, PLANARCONFIG_SEPARATE}, {"chunky4", 4, PLANARCONFIG_CONTIG},
     {"planar2", 2, PLANARCONFIG_SEPARATE}, {"planar4", 4, PLANARCONFIG_SEPARATE},
     {"chunky3", 3, PLANARCONFIG_CONTIG},
 };
 
-struct FileCase {
-  std::string name;
-  TiffFixtureSpec spec;
-  DataType dtype;
-};
-
-void PrintTo(const FileCase& c, std::ostream* os) { *os << c.name; }
-
 // Every type x compression x sample layout; container (classic/BigTIFF x byte order) and storage
 // (strips of 3 rows, one strip, 16x16 tiles over a 37x21 image) rotate so each compression meets
 // every container/storage pair several times.
-std::vector<FileCase> AllCases() {
-  std::vector<FileCase> cases;
-  int i = 0;
-  for (const CompressionCase& c : kCompressions) {
-    for (const TypeCase& t : kTypes) {
-      for (const SampleCase& s : kSamples) {
-        FileCase fc;
-        TiffFixtureSpec& spec = fc.spec;
-        spec.width = 37;
-        spec.height = 21;
-        spec.pages = 2;
-        spec.samples_per_pixel = s.samples;
-        spec.planar_config = s.planar;
-        spec.bits_per_sample = t.bits;
-        spec.sample_format = t.format;
-        spec.compression = c.compression;
-        spec.predictor = c.predictor ? (t.format == 3 ? 3 : 2) : 1;
-        const int container = i % 4;
-        const int storage = (i / 4) % 3;
-        spec.big_tiff = container >= 2;
-        spec.big_endian = container % 2 == 1;
-        if (storage == 0) spec.rows_per_strip = 3;
-        if (storage == 1) spec.rows_per_strip = spec.height;
-        if (storage == 2) spec.tile_width = spec.tile_height = 16;
-        fc.dtype = t.dtype;
-        fc.name = std::string(c.name) + "_" + t.name + "_" + s.name + "_" +
-                  (spec.big_tiff ? "big" : "classic") + (spec.big_endian ? "BE" : "LE") + "_" +
-                  (storage == 0   ? "strips"
-                   : storage == 1 ? "onestrip"
-                                  : "tiles");
-        cases.push_back(std::move(fc));
-        ++i;
-      }
-    }
-  }
-  return cases;
+std::vector<FixtureCase> AllCases() {
+  return CrossCases(37, 21, 2, kCompressions, kSamples, [](int i, FixtureCase& fc) {
+    TiffFixtureSpec& spec = fc.spec;
+    const int container = i % 4;
+    const int storage = (i / 4) % 3;
+    spec.big_tiff = container >= 2;
+    spec.big_endian = container % 2 == 1;
+    if (storage == 0) spec.rows_per_strip = 3;
+    if (storage == 1) spec.rows_per_strip = spec.height;
+    if (storage == 2) spec.tile_width = spec.tile_height = 16;
+    fc.name += ContainerName(spec) + "_" +
+               (storage == 0   ? "strips"
+                : storage == 1 ? "onestrip"
+                               : "tiles");
+  });
 }
 
-class TiffFileRoundTrip : public ::testing::TestWithParam<FileCase> {
- protected:
-  static void SetUpTestSuite() { dir_ = new fs::path(MakeTempDir("tiff-file-roundtrip")); }
-  static void TearDownTestSuite() {
-    fs::remove_all(*dir_);
-    delete dir_;
-  }
-  static fs::path* dir_;
-};
-fs::path* TiffFileRoundTrip::dir_ = nullptr;
+class TiffFileRoundTrip : public FixtureRoundTrip {};
 
 TEST_P(TiffFileRoundTrip, DecodesEveryVoxel) {
-  const FileCase& c = GetParam();
+  const FixtureCase& c = GetParam();
   const TiffFixtureSpec& spec = c.spec;
   const fs::path path = *dir_ / (c.name + ".tif");
   const DataType type = c.dtype;
-  ASSERT_TRUE(WriteTiffFixture(path, spec, [type](uint32_t x, uint32_t y, int page, int sample) {
-    return PatternFor(type, x, y, page, sample);
-  }));
+  ASSERT_TRUE(WriteTiffFixture(path, spec, PatternOf(type)));
 
   auto file = TiffFile::Open(path);
   ASSERT_TRUE(file.ok()) << file.status().ToString();
@@ -317,26 +190,16 @@ TEST_P(TiffFileRoundTrip, DecodesEveryVoxel) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllLayouts, TiffFileRoundTrip, ::testing::ValuesIn(AllCases()),
-                         [](const ::testing::TestParamInfo<FileCase>& info) {
+                         [](const ::testing::TestParamInfo<FixtureCase>& info) {
                            return info.param.name;
                          });
 
 // ---------------------------------------------------------------------------------------------
 // Metadata and odd layouts.
 
-class TiffFileTest : public ::testing::Test {
+class TiffFileTest : public TiffFixtureTest {
  protected:
-  void SetUp() override { dir_ = MakeTempDir("tiff-file"); }
-  void TearDown() override { fs::remove_all(dir_); }
-
-  // A small valid fixture (classic unless said otherwise).
-  fs::path Fixture(const std::string& name, TiffFixtureSpec spec = {}) {
-    fs::path path = dir_ / name;
-    EXPECT_TRUE(WriteTiffFixture(path, spec));
-    return path;
-  }
-
-  fs::path dir_;
+  TiffFileTest() : TiffFixtureTest("tiff-file") {}
 };
 
 TEST_F(TiffFileTest, ReadsDescriptionResolutionAndOffsets) {
@@ -455,9 +318,7 @@ TEST_F(TiffFileTest, ConcurrentReadsAreCorrect) {
   spec.compression = COMPRESSION_ADOBE_DEFLATE;
   spec.rows_per_strip = 5;
   fs::path path = dir_ / "threads.tif";
-  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int p, int s) {
-    return PatternFor(DataType::kUint16, x, y, p, s);
-  }));
+  ASSERT_TRUE(WriteTiffFixture(path, spec, PatternOf(DataType::kUint16)));
   auto file = TiffFile::Open(path);
   ASSERT_TRUE(file.ok()) << file.status().ToString();
   TiffFile* f = file->get();
@@ -762,10 +623,6 @@ TEST_F(TiffFileTest, OutOfRangeRequests) {
 // ---------------------------------------------------------------------------------------------
 // Regressions for crafted files (each is also a fuzz regression input in fuzz/regressions/).
 
-fs::path Regression(const std::string& name) {
-  return fs::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
-}
-
 // A writable buffer of `bytes` (gigabytes) whose pages all alias one small memfd block: lets a
 // test hand ReadPlane the plane of a 2^32-row image while touching only kBlock bytes of memory.
 // Every alias shows the same bytes, so a fill of the block shows everywhere.
@@ -902,9 +759,7 @@ TEST_F(TiffFileTest, ChunkyStripsLargerThanThePlaneLimitAreRefusedAtOpen) {
   spec.rows_per_strip = 8;
   spec.compression = COMPRESSION_ADOBE_DEFLATE;
   const fs::path path = dir_ / "rgb.tif";
-  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int page, int sample) {
-    return PatternFor(DataType::kUint16, x, y, page, sample);
-  }));
+  ASSERT_TRUE(WriteTiffFixture(path, spec, PatternOf(DataType::kUint16)));
   TiffFile::Limits limits;
   limits.max_plane_bytes = 767;
   st = TiffFile::Open(path, limits).status();
@@ -930,9 +785,7 @@ TEST_F(TiffFileTest, ImageSmallerThanOneTileDecodes) {
   spec.tile_height = 1024;
   spec.compression = COMPRESSION_ADOBE_DEFLATE;
   const fs::path path = dir_ / "narrow.tif";
-  ASSERT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int page, int sample) {
-    return PatternFor(DataType::kUint16, x, y, page, sample);
-  }));
+  ASSERT_TRUE(WriteTiffFixture(path, spec, PatternOf(DataType::kUint16)));
   auto file = TiffFile::Open(path);
   ASSERT_TRUE(file.ok()) << file.status().ToString();
   ASSERT_TRUE((*file)->ifd(0).tiled);

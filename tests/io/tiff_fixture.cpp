@@ -9,6 +9,8 @@
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <iterator>
 #include <random>
 
 namespace octoscope::testing {
@@ -17,21 +19,43 @@ namespace {
 // Stores `v` as the sample type described by bits/format into `out`.
 void StoreSample(double v, uint16_t bits, uint16_t format, uint8_t* out) {
   if (format == SAMPLEFORMAT_IEEEFP) {
-    if (bits == 32) { float f = static_cast<float>(v); std::memcpy(out, &f, 4); }
-    else { std::memcpy(out, &v, 8); }
+    if (bits == 32) {
+      float f = static_cast<float>(v);
+      std::memcpy(out, &f, 4);
+    } else {
+      std::memcpy(out, &v, 8);
+    }
     return;
   }
   if (format == SAMPLEFORMAT_INT) {
     int64_t i = static_cast<int64_t>(v);
-    if (bits == 8) { int8_t x = static_cast<int8_t>(i); std::memcpy(out, &x, 1); }
-    if (bits == 16) { int16_t x = static_cast<int16_t>(i); std::memcpy(out, &x, 2); }
-    if (bits == 32) { int32_t x = static_cast<int32_t>(i); std::memcpy(out, &x, 4); }
+    if (bits == 8) {
+      int8_t x = static_cast<int8_t>(i);
+      std::memcpy(out, &x, 1);
+    }
+    if (bits == 16) {
+      int16_t x = static_cast<int16_t>(i);
+      std::memcpy(out, &x, 2);
+    }
+    if (bits == 32) {
+      int32_t x = static_cast<int32_t>(i);
+      std::memcpy(out, &x, 4);
+    }
     return;
   }
   uint64_t u = static_cast<uint64_t>(v);
-  if (bits == 8) { uint8_t x = static_cast<uint8_t>(u); std::memcpy(out, &x, 1); }
-  if (bits == 16) { uint16_t x = static_cast<uint16_t>(u); std::memcpy(out, &x, 2); }
-  if (bits == 32) { uint32_t x = static_cast<uint32_t>(u); std::memcpy(out, &x, 4); }
+  if (bits == 8) {
+    uint8_t x = static_cast<uint8_t>(u);
+    std::memcpy(out, &x, 1);
+  }
+  if (bits == 16) {
+    uint16_t x = static_cast<uint16_t>(u);
+    std::memcpy(out, &x, 2);
+  }
+  if (bits == 32) {
+    uint32_t x = static_cast<uint32_t>(u);
+    std::memcpy(out, &x, 4);
+  }
 }
 
 // libtiff 4.5 byte-swaps the caller's samples to the file's byte order *before* applying the
@@ -62,8 +86,7 @@ bool LibtiffSwapsBeforeFloatPredictor() {
     tif = TIFFOpen(path.c_str(), "r");
     if (tif) {
       float back[2] = {0, 0};
-      result = TIFFReadEncodedStrip(tif, 0, back, sizeof(back)) == sizeof(back) &&
-               back[0] != 1.5f;
+      result = TIFFReadEncodedStrip(tif, 0, back, sizeof(back)) == sizeof(back) && back[0] != 1.5f;
       TIFFClose(tif);
     }
     std::filesystem::remove(path);
@@ -139,8 +162,9 @@ bool WriteTiffFixture(const std::filesystem::path& path, const TiffFixtureSpec& 
     // Fill one whole plane in memory in the file's sample layout, then write it in pieces.
     const int planes = spec.planar_config == PLANARCONFIG_SEPARATE ? spp : 1;
     const int per_pixel = spec.planar_config == PLANARCONFIG_SEPARATE ? 1 : spp;
-    std::vector<std::vector<uint8_t>> plane(planes, std::vector<uint8_t>(
-        static_cast<size_t>(spec.width) * spec.height * per_pixel * bytes));
+    std::vector<std::vector<uint8_t>> plane(
+        planes,
+        std::vector<uint8_t>(static_cast<size_t>(spec.width) * spec.height * per_pixel * bytes));
     for (int p = 0; p < planes; ++p) {
       for (uint32_t y = 0; y < spec.height; ++y) {
         for (uint32_t x = 0; x < spec.width; ++x) {
@@ -205,6 +229,137 @@ std::filesystem::path MakeTempDir(const std::string& name) {
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir;
+}
+
+double PatternFor(volume::DataType type, uint32_t x, uint32_t y, int page, int sample) {
+  const uint64_t base =
+      uint64_t{x} * 7 + uint64_t{y} * 131 + uint64_t(page) * 1031 + uint64_t(sample) * 15013;
+  if (volume::IsFloat(type)) return static_cast<double>(base % 65536) * 0.37 - 5000.5;
+  return static_cast<double>((base * 65599u) % 4294967296u);
+}
+
+VoxelValue PatternOf(volume::DataType type) {
+  return [type](uint32_t x, uint32_t y, int page, int sample) {
+    return PatternFor(type, x, y, page, sample);
+  };
+}
+
+std::array<std::byte, 8> SampleBytes(double v, volume::DataType type) {
+  using volume::DataType;
+  std::array<std::byte, 8> out{};
+  auto put = [&](auto x) { std::memcpy(out.data(), &x, sizeof(x)); };
+  switch (type) {
+    case DataType::kUint8:
+      put(static_cast<uint8_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kUint16:
+      put(static_cast<uint16_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kUint32:
+      put(static_cast<uint32_t>(static_cast<uint64_t>(v)));
+      break;
+    case DataType::kInt8:
+      put(static_cast<int8_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kInt16:
+      put(static_cast<int16_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kInt32:
+      put(static_cast<int32_t>(static_cast<int64_t>(v)));
+      break;
+    case DataType::kFloat32:
+      put(static_cast<float>(v));
+      break;
+    case DataType::kFloat64:
+      put(v);
+      break;
+  }
+  return out;
+}
+
+int CountMismatches(std::span<const std::byte> plane, volume::DataType type, uint32_t width,
+                    uint32_t height, int page, int sample) {
+  const size_t bytes = volume::BytesPerSample(type);
+  int wrong = 0;
+  for (uint32_t y = 0; y < height; ++y) {
+    for (uint32_t x = 0; x < width; ++x) {
+      const auto want = SampleBytes(PatternFor(type, x, y, page, sample), type);
+      const std::byte* got = plane.data() + (uint64_t{y} * width + x) * bytes;
+      if (std::memcmp(got, want.data(), bytes) != 0) {
+        if (++wrong <= 3) {
+          ADD_FAILURE() << "voxel x=" << x << " y=" << y << " page=" << page << " sample=" << sample
+                        << " differs";
+        }
+      }
+    }
+  }
+  return wrong;
+}
+
+std::vector<FixtureCase> CrossCases(uint32_t width, uint32_t height, int pages,
+                                    std::span<const FixtureCompression> compressions,
+                                    std::span<const FixtureSamples> samples,
+                                    const std::function<void(int i, FixtureCase& c)>& finish) {
+  std::vector<FixtureCase> cases;
+  int i = 0;
+  for (const FixtureCompression& c : compressions) {
+    for (const FixtureType& t : kFixtureTypes) {
+      for (const FixtureSamples& s : samples) {
+        FixtureCase fc;
+        TiffFixtureSpec& spec = fc.spec;
+        spec.width = width;
+        spec.height = height;
+        spec.pages = pages;
+        spec.samples_per_pixel = s.samples;
+        spec.planar_config = s.planar;
+        spec.bits_per_sample = t.bits;
+        spec.sample_format = t.format;
+        spec.compression = c.compression;
+        spec.predictor = c.predictor ? (t.format == 3 ? 3 : 2) : 1;
+        fc.dtype = t.dtype;
+        fc.name = std::string(c.name) + "_" + t.name + "_" + s.name + "_";
+        finish(i++, fc);
+        cases.push_back(std::move(fc));
+      }
+    }
+  }
+  return cases;
+}
+
+std::string ContainerName(const TiffFixtureSpec& spec) {
+  return std::string(spec.big_tiff ? "big" : "classic") + (spec.big_endian ? "BE" : "LE");
+}
+
+std::vector<uint8_t> ReadAll(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
+}
+
+void WriteAll(const std::filesystem::path& path, const std::vector<uint8_t>& bytes) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out.write(reinterpret_cast<const char*>(bytes.data()),
+            static_cast<std::streamsize>(bytes.size()));
+}
+
+std::filesystem::path Regression(const std::string& name) {
+  return std::filesystem::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
+}
+
+void ExpectErrorNaming(const Status& status, const std::filesystem::path& path) {
+  EXPECT_FALSE(status.ok());
+  EXPECT_NE(status.message().find(path.string()), std::string::npos) << status.ToString();
+}
+
+std::filesystem::path* FixtureRoundTrip::dir_ = nullptr;
+
+void FixtureRoundTrip::SetUpTestSuite() {
+  dir_ = new std::filesystem::path(MakeTempDir("tiff-roundtrip"));
+}
+
+void FixtureRoundTrip::TearDownTestSuite() {
+  std::filesystem::remove_all(*dir_);
+  delete dir_;
+  dir_ = nullptr;
 }
 
 }  // namespace octoscope::testing

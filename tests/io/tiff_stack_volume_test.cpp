@@ -11,6 +11,7 @@
 #include <bit>
 #include <cstring>
 #include <fstream>
+#include <memory>
 #include <optional>
 #include <span>
 #include <string>
@@ -23,177 +24,58 @@ namespace octoscope::io {
 namespace {
 
 namespace fs = std::filesystem;
+using octoscope::testing::ContainerName;
+using octoscope::testing::CountMismatches;
+using octoscope::testing::CrossCases;
+using octoscope::testing::ExpectErrorNaming;
+using octoscope::testing::FixtureCase;
+using octoscope::testing::FixtureCompression;
+using octoscope::testing::FixtureRoundTrip;
+using octoscope::testing::FixtureSamples;
 using octoscope::testing::MakeTempDir;
+using octoscope::testing::PatternFor;
+using octoscope::testing::PatternOf;
+using octoscope::testing::ReadAll;
+using octoscope::testing::Regression;
+using octoscope::testing::SampleBytes;
 using octoscope::testing::TiffFixtureSpec;
+using octoscope::testing::TiffFixtureTest;
+using octoscope::testing::WriteAll;
 using octoscope::testing::WriteTiffFixture;
 using volume::DataType;
 
 const fs::path kTestData = OCTOSCOPE_TESTDATA;
 
-// Integers exercise all 32 bits (and signs, once narrowed); floats get fractions and negatives.
-double PatternFor(DataType type, uint32_t x, uint32_t y, int page, int sample) {
-  const uint64_t base =
-      uint64_t{x} * 7 + uint64_t{y} * 131 + uint64_t(page) * 1031 + uint64_t(sample) * 15013;
-  if (volume::IsFloat(type)) return static_cast<double>(base % 65536) * 0.37 - 5000.5;
-  return static_cast<double>((base * 65599u) % 4294967296u);
-}
-
-// The bytes (native order) the fixture stores for `v`, with the same casts it uses.
-std::array<std::byte, 8> SampleBytes(double v, DataType type) {
-  std::array<std::byte, 8> out{};
-  auto put = [&](auto x) { std::memcpy(out.data(), &x, sizeof(x)); };
-  switch (type) {
-    case DataType::kUint8:
-      put(static_cast<uint8_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kUint16:
-      put(static_cast<uint16_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kUint32:
-      put(static_cast<uint32_t>(static_cast<uint64_t>(v)));
-      break;
-    case DataType::kInt8:
-      put(static_cast<int8_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kInt16:
-      put(static_cast<int16_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kInt32:
-      put(static_cast<int32_t>(static_cast<int64_t>(v)));
-      break;
-    case DataType::kFloat32:
-      put(static_cast<float>(v));
-      break;
-    case DataType::kFloat64:
-      put(v);
-      break;
-  }
-  return out;
-}
-
-// Number of voxels of `plane` (x fastest) that differ from the pattern of (page, sample).
-int CountMismatches(std::span<const std::byte> plane, DataType type, uint32_t width,
-                    uint32_t height, int page, int sample) {
-  const size_t bytes = volume::BytesPerSample(type);
-  int wrong = 0;
-  for (uint32_t y = 0; y < height; ++y) {
-    for (uint32_t x = 0; x < width; ++x) {
-      const auto want = SampleBytes(PatternFor(type, x, y, page, sample), type);
-      if (std::memcmp(plane.data() + (uint64_t{y} * width + x) * bytes, want.data(), bytes) != 0) {
-        if (++wrong <= 3) {
-          ADD_FAILURE() << "voxel x=" << x << " y=" << y << " page=" << page << " sample=" << sample
-                        << " differs";
-        }
-      }
-    }
-  }
-  return wrong;
-}
-
-void ExpectErrorNaming(const Status& status, const fs::path& path) {
-  EXPECT_FALSE(status.ok());
-  EXPECT_NE(status.message().find(path.string()), std::string::npos) << status.ToString();
-}
-
-std::vector<uint8_t> ReadAll(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::vector<uint8_t>(std::istreambuf_iterator<char>(in), {});
-}
-
-void WriteAll(const fs::path& path, const std::vector<uint8_t>& bytes) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  out.write(reinterpret_cast<const char*>(bytes.data()),
-            static_cast<std::streamsize>(bytes.size()));
-}
-
 // ---------------------------------------------------------------------------------------------
 // Plain stacks: every voxel of every (channel, z) through ReadSlab.
 
-struct StackCase {
-  std::string name;
-  TiffFixtureSpec spec;
-  DataType dtype;
-};
-
-void PrintTo(const StackCase& c, std::ostream* os) { *os << c.name; }
-
-std::vector<StackCase> StackCases() {
-  struct Type {
-    const char* name;
-    uint16_t bits, format;
-    DataType dtype;
-  };
-  const Type types[] = {{"u8", 8, 1, DataType::kUint8},     {"i8", 8, 2, DataType::kInt8},
-                        {"u16", 16, 1, DataType::kUint16},  {"i16", 16, 2, DataType::kInt16},
-                        {"u32", 32, 1, DataType::kUint32},  {"i32", 32, 2, DataType::kInt32},
-                        {"f32", 32, 3, DataType::kFloat32}, {"f64", 64, 3, DataType::kFloat64}};
-  struct Samples {
-    const char* name;
-    uint16_t samples, planar;
-  };
-  const Samples samples[] = {{"c1", 1, 1}, {"chunky3", 3, 1}, {"planar2", 2, 2}, {"chunky4", 4, 1}};
-  struct Compression {
-    const char* name;
-    uint16_t compression;
-    bool predictor;
-  };
-  const Compression compressions[] = {{"none", COMPRESSION_NONE, false},
-                                      {"lzw", COMPRESSION_LZW, false},
-                                      {"deflatepred", COMPRESSION_ADOBE_DEFLATE, true},
-                                      {"zstd", COMPRESSION_ZSTD, false},
-                                      {"packbits", COMPRESSION_PACKBITS, false},
-                                      {"lzma", COMPRESSION_LZMA, false}};
-  std::vector<StackCase> cases;
-  int i = 0;
-  for (const Compression& c : compressions) {
-    for (const Type& t : types) {
-      for (const Samples& s : samples) {
-        StackCase sc;
-        TiffFixtureSpec& spec = sc.spec;
-        spec.width = 23;
-        spec.height = 19;
-        spec.pages = 5;
-        spec.samples_per_pixel = s.samples;
-        spec.planar_config = s.planar;
-        spec.bits_per_sample = t.bits;
-        spec.sample_format = t.format;
-        spec.compression = c.compression;
-        spec.predictor = c.predictor ? (t.format == 3 ? 3 : 2) : 1;
-        spec.big_tiff = (i % 4) >= 2;
-        spec.big_endian = (i % 2) == 1;
-        const bool tiles = (i / 4) % 2 == 1;
-        if (tiles) spec.tile_width = spec.tile_height = 16;
-        sc.dtype = t.dtype;
-        sc.name = std::string(c.name) + "_" + t.name + "_" + s.name + "_" +
-                  (spec.big_tiff ? "big" : "classic") + (spec.big_endian ? "BE" : "LE") +
-                  (tiles ? "_tiles" : "_strips");
-        cases.push_back(std::move(sc));
-        ++i;
-      }
-    }
-  }
-  return cases;
+std::vector<FixtureCase> StackCases() {
+  const FixtureSamples samples[] = {
+      {"c1", 1, 1}, {"chunky3", 3, 1}, {"planar2", 2, 2}, {"chunky4", 4, 1}};
+  const FixtureCompression compressions[] = {{"none", COMPRESSION_NONE, false},
+                                             {"lzw", COMPRESSION_LZW, false},
+                                             {"deflatepred", COMPRESSION_ADOBE_DEFLATE, true},
+                                             {"zstd", COMPRESSION_ZSTD, false},
+                                             {"packbits", COMPRESSION_PACKBITS, false},
+                                             {"lzma", COMPRESSION_LZMA, false}};
+  return CrossCases(23, 19, 5, compressions, samples, [](int i, FixtureCase& sc) {
+    TiffFixtureSpec& spec = sc.spec;
+    spec.big_tiff = (i % 4) >= 2;
+    spec.big_endian = (i % 2) == 1;
+    const bool tiles = (i / 4) % 2 == 1;
+    if (tiles) spec.tile_width = spec.tile_height = 16;
+    sc.name += ContainerName(spec) + (tiles ? "_tiles" : "_strips");
+  });
 }
 
-class TiffStackRoundTrip : public ::testing::TestWithParam<StackCase> {
- protected:
-  static void SetUpTestSuite() { dir_ = new fs::path(MakeTempDir("tiff-stack-roundtrip")); }
-  static void TearDownTestSuite() {
-    fs::remove_all(*dir_);
-    delete dir_;
-  }
-  static fs::path* dir_;
-};
-fs::path* TiffStackRoundTrip::dir_ = nullptr;
+class TiffStackRoundTrip : public FixtureRoundTrip {};
 
 TEST_P(TiffStackRoundTrip, ReadsEveryVoxel) {
-  const StackCase& c = GetParam();
+  const FixtureCase& c = GetParam();
   const TiffFixtureSpec& spec = c.spec;
   const DataType type = c.dtype;
   const fs::path path = *dir_ / (c.name + ".tif");
-  ASSERT_TRUE(WriteTiffFixture(path, spec, [type](uint32_t x, uint32_t y, int page, int sample) {
-    return PatternFor(type, x, y, page, sample);
-  }));
+  ASSERT_TRUE(WriteTiffFixture(path, spec, PatternOf(type)));
   auto source = OpenTiffStack(path, OpenOptions{});
   ASSERT_TRUE(source.ok()) << source.status().ToString();
   VolumeSource& v = **source;
@@ -252,26 +134,16 @@ TEST_P(TiffStackRoundTrip, ReadsEveryVoxel) {
 }
 
 INSTANTIATE_TEST_SUITE_P(AllLayouts, TiffStackRoundTrip, ::testing::ValuesIn(StackCases()),
-                         [](const ::testing::TestParamInfo<StackCase>& info) {
+                         [](const ::testing::TestParamInfo<FixtureCase>& info) {
                            return info.param.name;
                          });
 
 // ---------------------------------------------------------------------------------------------
 
-class TiffStackTest : public ::testing::Test {
+// Fixtures hold the uint16 pattern (cast to each fixture's sample type).
+class TiffStackTest : public TiffFixtureTest {
  protected:
-  void SetUp() override { dir_ = MakeTempDir("tiff-stack"); }
-  void TearDown() override { fs::remove_all(dir_); }
-
-  fs::path Fixture(const std::string& name, const TiffFixtureSpec& spec) {
-    fs::path path = dir_ / name;
-    EXPECT_TRUE(WriteTiffFixture(path, spec, [](uint32_t x, uint32_t y, int page, int sample) {
-      return PatternFor(DataType::kUint16, x, y, page, sample);
-    }));
-    return path;
-  }
-
-  fs::path dir_;
+  TiffStackTest() : TiffFixtureTest("tiff-stack", PatternOf(DataType::kUint16)) {}
 };
 
 TEST_F(TiffStackTest, PlainSpacingFromCentimetreResolutionOnly) {
@@ -439,6 +311,13 @@ TEST_F(TiffStackTest, ConcurrentSlabsAreCorrect) {
 // ---------------------------------------------------------------------------------------------
 // ImageJ.
 
+// Opens time point t of the stack at `path`, with default options otherwise.
+Result<std::unique_ptr<VolumeSource>> OpenAtTime(const fs::path& path, int t) {
+  OpenOptions options;
+  options.time = t;
+  return OpenTiffStack(path, options);
+}
+
 TEST(ImageJDescriptionTest, Parses) {
   auto d = ParseImageJDescription(
       "ImageJ=1.54f\nimages=90\nchannels=2\nslices=45\nhyperstack=true\nmode=color\n"
@@ -488,9 +367,7 @@ TEST_F(TiffStackTest, ImageJHyperstack) {
   spec.resolution_unit = RESUNIT_NONE;
   fs::path path = Fixture("hyper.tif", spec);
   for (int t = 0; t < 4; ++t) {
-    OpenOptions options;
-    options.time = t;
-    auto source = OpenTiffStack(path, options);
+    auto source = OpenAtTime(path, t);
     ASSERT_TRUE(source.ok()) << source.status().ToString();
     const volume::VolumeInfo& info = (*source)->info();
     EXPECT_EQ(info.format, "imagej-tiff");
@@ -560,10 +437,6 @@ TEST_F(TiffStackTest, ImageJInconsistentCountsAreErrors) {
   st = OpenTiffStack(missing, OpenOptions{}).status();
   EXPECT_EQ(st.code(), StatusCode::kCorrupt);
   ExpectErrorNaming(st, missing);
-}
-
-fs::path Regression(const std::string& name) {
-  return fs::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
 }
 
 // Bug: ImageJ counts sized allocations before the file was consulted: images=10^12 reserved a
@@ -760,9 +633,7 @@ TEST_F(TiffStackTest, ImageJSingleIfdContiguousImages) {
     ASSERT_TRUE(file.ok()) << file.status().ToString();
     ASSERT_EQ((*file)->ifd_count(), 1);
     for (int t = 0; t < 2; ++t) {
-      OpenOptions options;
-      options.time = t;
-      auto source = OpenTiffStack(path, options);
+      auto source = OpenAtTime(path, t);
       ASSERT_TRUE(source.ok()) << source.status().ToString();
       const volume::VolumeInfo& info = (*source)->info();
       EXPECT_EQ(info.format, "imagej-tiff");
@@ -829,8 +700,7 @@ struct RawPlane {
 };
 
 std::vector<RawPlane> DecodeUncompressedTiff(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::vector<uint8_t> b((std::istreambuf_iterator<char>(in)), {});
+  const std::vector<uint8_t> b = ReadAll(path);
   std::vector<RawPlane> planes;
   if (b.size() < 8) return planes;
   const bool be = b[0] == 'M';
@@ -933,9 +803,7 @@ TEST(TiffStackRealTest, ScanImageBigTiffChannelsAndTime) {
   auto file = TiffFile::Open(path);
   ASSERT_TRUE(file.ok()) << file.status().ToString();
   for (int t = 0; t < 2; ++t) {
-    OpenOptions options;
-    options.time = t;
-    auto source = OpenTiffStack(path, options);
+    auto source = OpenAtTime(path, t);
     ASSERT_TRUE(source.ok()) << source.status().ToString();
     const volume::VolumeInfo& info = (*source)->info();
     EXPECT_EQ(info.size, (std::array<int64_t, 3>{64, 64, 1}));

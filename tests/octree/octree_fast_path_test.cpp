@@ -20,29 +20,18 @@ using testing::BrickSample;
 using testing::BuildReference;
 using testing::DumpTree;
 using testing::ExpectSameTree;
+using testing::InsertBox;
 using testing::MakePatternVolume;
+using testing::Params;
 using testing::ReferencePyramid;
 using testing::ReferenceStats;
 using testing::SourceVolume;
 using testing::TreeFixture;
 
-BrickGeometry::Params Params(Vec3 size, Vec3 brick, int channels, int bps) {
-  BrickGeometry::Params p;
-  p.volume_size = size;
-  p.brick_size = brick;
-  p.channels = channels;
-  p.bytes_per_sample = bps;
-  return p;
-}
-
 void InsertSlabs(Octree& tree, const SourceVolume& src, int64_t planes) {
-  const int bps = tree.geometry().bytes_per_sample();
   for (int64_t z = 0; z < src.size[2]; z += planes) {
     const Box box{{0, 0, z}, {src.size[0], src.size[1], std::min(z + planes, src.size[2])}};
-    for (int c = 0; c < src.channels; ++c) {
-      Status st = tree.Insert(c, box, src.Block(c, box, bps));
-      ASSERT_TRUE(st.ok()) << st.ToString() << " inserting " << box.ToString();
-    }
+    for (int c = 0; c < src.channels; ++c) ASSERT_NO_FATAL_FAILURE(InsertBox(tree, src, c, box));
   }
 }
 

@@ -16,28 +16,12 @@ namespace {
 
 using testing::DumpTree;
 using testing::ExpectSameTree;
+using testing::InsertBlock;
 using testing::MakePatternVolume;
+using testing::Params;
 using testing::SourceVolume;
 using testing::TreeFixture;
-
-BrickGeometry::Params Params(Vec3 size, Vec3 brick, int channels, int bps) {
-  BrickGeometry::Params p;
-  p.volume_size = size;
-  p.brick_size = brick;
-  p.channels = channels;
-  p.bytes_per_sample = bps;
-  return p;
-}
-
-std::vector<Box> ZSlabs(const Vec3& size) {
-  std::vector<Box> out;
-  for (int64_t z = 0; z < size[2]; ++z) out.push_back(Box{{0, 0, z}, {size[0], size[1], z + 1}});
-  return out;
-}
-
-Status InsertSlab(Octree& tree, const SourceVolume& src, int c, const Box& box) {
-  return tree.Insert(c, box, src.Block(c, box, tree.geometry().bytes_per_sample()));
-}
+using testing::ZSlabs;
 
 TEST(OctreePersistenceTest, SaveLoadRoundTripsAPartialTreeAndBuildingContinues) {
   const Vec3 size{23, 17, 12};
@@ -53,7 +37,7 @@ TEST(OctreePersistenceTest, SaveLoadRoundTripsAPartialTreeAndBuildingContinues) 
   TreeFixture full = TreeFixture::Make(params, options);
   ASSERT_TRUE(full.tree);
   for (const Box& b : slabs)
-    for (int c = 0; c < 2; ++c) ASSERT_TRUE(InsertSlab(*full.tree, src, c, b).ok());
+    for (int c = 0; c < 2; ++c) ASSERT_TRUE(InsertBlock(*full.tree, src, c, b).ok());
 
   // Half the slabs (channel 1 of the last one missing: partial leaves), then save.
   auto store = std::make_unique<paging::MemoryPageStore>(1 << 14);
@@ -64,15 +48,15 @@ TEST(OctreePersistenceTest, SaveLoadRoundTripsAPartialTreeAndBuildingContinues) 
     auto tree = Octree::Create(*BrickGeometry::Create(params), options, cache.get());
     ASSERT_TRUE(tree.ok());
     for (size_t i = 0; i < slabs.size() / 2; ++i) {
-      ASSERT_TRUE(InsertSlab(**tree, src, 0, slabs[i]).ok());
+      ASSERT_TRUE(InsertBlock(**tree, src, 0, slabs[i]).ok());
       if (i + 1 < slabs.size() / 2) {
-        ASSERT_TRUE(InsertSlab(**tree, src, 1, slabs[i]).ok());
+        ASSERT_TRUE(InsertBlock(**tree, src, 1, slabs[i]).ok());
       }
     }
     // Partial rows too: half of one row of the next slab.
     const Box half_row{{0, 0, static_cast<int64_t>(slabs.size() / 2)},
                        {11, 1, static_cast<int64_t>(slabs.size() / 2) + 1}};
-    ASSERT_TRUE(InsertSlab(**tree, src, 0, half_row).ok());
+    ASSERT_TRUE(InsertBlock(**tree, src, 0, half_row).ok());
     before = DumpTree(**tree);
     ASSERT_TRUE((*tree)->Flush().ok());
     std::ostringstream out;
@@ -95,7 +79,7 @@ TEST(OctreePersistenceTest, SaveLoadRoundTripsAPartialTreeAndBuildingContinues) 
 
   // Continue: the rest of the volume (re-writing the half row is harmless: same values).
   for (size_t i = slabs.size() / 2 - 1; i < slabs.size(); ++i) {
-    for (int c = 0; c < 2; ++c) ASSERT_TRUE(InsertSlab(tree, src, c, slabs[i]).ok());
+    for (int c = 0; c < 2; ++c) ASSERT_TRUE(InsertBlock(tree, src, c, slabs[i]).ok());
   }
   ExpectSameTree(DumpTree(*full.tree), DumpTree(tree), "continued after load");
 }
@@ -108,7 +92,7 @@ TEST(OctreePersistenceTest, LoadRejectsTruncatedAndCorruptTables) {
   TreeFixture f = TreeFixture::Make(Params(size, {4, 2, 2}, 1, 1), options);
   ASSERT_TRUE(f.tree);
   const auto slabs = ZSlabs(size);
-  for (size_t i = 0; i < 4; ++i) ASSERT_TRUE(InsertSlab(*f.tree, src, 0, slabs[i]).ok());
+  for (size_t i = 0; i < 4; ++i) ASSERT_TRUE(InsertBlock(*f.tree, src, 0, slabs[i]).ok());
   std::ostringstream out;
   ASSERT_TRUE(f.tree->Save(out).ok());
   const std::string bytes = out.str();
@@ -147,8 +131,8 @@ TEST(OctreePersistenceTest, TinyPageBudgetGivesTheSameTree) {
   ASSERT_TRUE(roomy.tree && tight.tree);
   for (const Box& b : ZSlabs(size)) {
     for (int c = 0; c < 2; ++c) {
-      ASSERT_TRUE(InsertSlab(*roomy.tree, src, c, b).ok());
-      ASSERT_TRUE(InsertSlab(*tight.tree, src, c, b).ok());
+      ASSERT_TRUE(InsertBlock(*roomy.tree, src, c, b).ok());
+      ASSERT_TRUE(InsertBlock(*tight.tree, src, c, b).ok());
     }
   }
   ExpectSameTree(DumpTree(*roomy.tree), DumpTree(*tight.tree), "tight budget");
@@ -167,7 +151,7 @@ TEST(OctreePersistenceTest, FailedInsertCanBeRepeated) {
   const auto params = Params(size, {4, 4, 2}, 1, 2);
   TreeFixture reference = TreeFixture::Make(params, options);
   ASSERT_TRUE(reference.tree);
-  for (const Box& b : ZSlabs(size)) ASSERT_TRUE(InsertSlab(*reference.tree, src, 0, b).ok());
+  for (const Box& b : ZSlabs(size)) ASSERT_TRUE(InsertBlock(*reference.tree, src, 0, b).ok());
 
   paging::MemoryPageStore inner(2 * 6 * 6 * 4 * 2);
   paging::FaultInjectingPageStore store(&inner);
@@ -178,12 +162,12 @@ TEST(OctreePersistenceTest, FailedInsertCanBeRepeated) {
   int failures = 0;
   for (const Box& b : ZSlabs(size)) {
     store.FailNthRead(7);
-    Status st = InsertSlab(**tree, src, 0, b);
+    Status st = InsertBlock(**tree, src, 0, b);
     store.FailNthRead(0);
     if (!st.ok()) {
       ++failures;
       EXPECT_EQ(st.code(), StatusCode::kIoError) << st.ToString();
-      ASSERT_TRUE(InsertSlab(**tree, src, 0, b).ok());
+      ASSERT_TRUE(InsertBlock(**tree, src, 0, b).ok());
     }
   }
   EXPECT_GT(failures, 0);

@@ -238,6 +238,36 @@ inline uint16_t BrickSample(const BrickGeometry& g, const NodeKey& key,
   return v;
 }
 
+// Geometry parameters: a volume of `size` voxels in bricks of `brick`, `channels` channels of
+// `bps`-byte samples.
+inline BrickGeometry::Params Params(Vec3 size, Vec3 brick, int channels, int bps) {
+  BrickGeometry::Params p;
+  p.volume_size = size;
+  p.brick_size = brick;
+  p.channels = channels;
+  p.bytes_per_sample = bps;
+  return p;
+}
+
+// One box per z plane of a `size` volume, bottom to top.
+inline std::vector<Box> ZSlabs(const Vec3& size) {
+  std::vector<Box> out;
+  for (int64_t z = 0; z < size[2]; ++z) out.push_back(Box{{0, 0, z}, {size[0], size[1], z + 1}});
+  return out;
+}
+
+// Inserts channel c of `box` from `src`, in the tree's sample size.
+inline Status InsertBlock(Octree& tree, const SourceVolume& src, int c, const Box& box) {
+  return tree.Insert(c, box, src.Block(c, box, tree.geometry().bytes_per_sample()));
+}
+
+// InsertBlock that fails the test (fatally: wrap in ASSERT_NO_FATAL_FAILURE to stop the caller)
+// with the status and the box.
+inline void InsertBox(Octree& tree, const SourceVolume& src, int c, const Box& box) {
+  Status st = InsertBlock(tree, src, c, box);
+  ASSERT_TRUE(st.ok()) << st.ToString() << " inserting " << box.ToString();
+}
+
 // A page store + cache + octree.
 struct TreeFixture {
   std::unique_ptr<paging::MemoryPageStore> store;

@@ -21,27 +21,18 @@ using testing::BrickSample;
 using testing::BuildReference;
 using testing::DumpTree;
 using testing::ExpectSameTree;
+using testing::InsertBox;
 using testing::MakePatternVolume;
+using testing::Params;
 using testing::ReferencePyramid;
 using testing::ReferenceStats;
 using testing::SourceVolume;
 using testing::TreeFixture;
+using testing::ZSlabs;
 
 uint16_t RoundHalfUp(double v) { return static_cast<uint16_t>(std::floor(v + 0.5)); }
 
-void InsertBox(Octree& tree, const SourceVolume& src, int c, const Box& box) {
-  const int bps = tree.geometry().bytes_per_sample();
-  Status st = tree.Insert(c, box, src.Block(c, box, bps));
-  ASSERT_TRUE(st.ok()) << st.ToString() << " inserting " << box.ToString();
-}
-
 // --- Insertion orders / block shapes (each voxel of every channel exactly once). ---
-
-std::vector<Box> ZSlabs(const Vec3& size) {
-  std::vector<Box> out;
-  for (int64_t z = 0; z < size[2]; ++z) out.push_back(Box{{0, 0, z}, {size[0], size[1], z + 1}});
-  return out;
-}
 
 std::vector<Box> XSlices(const Vec3& size) {
   std::vector<Box> out;
@@ -162,15 +153,6 @@ void VerifyCompleteTree(const Octree& tree, const SourceVolume& src) {
       for (int octant = 0; octant < 8; ++octant) stack.push_back(ChildKey(key, octant));
   }
   EXPECT_GT(checked, 0);
-}
-
-BrickGeometry::Params Params(Vec3 size, Vec3 brick, int channels, int bps) {
-  BrickGeometry::Params p;
-  p.volume_size = size;
-  p.brick_size = brick;
-  p.channels = channels;
-  p.bytes_per_sample = bps;
-  return p;
 }
 
 // --------------------------------------------------------------------------------------------
