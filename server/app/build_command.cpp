@@ -1,4 +1,5 @@
-// `octoscope build INPUT --cache DIR`: builds (or reuses) the octree of a scan in a cache directory.
+// `octoscope build INPUT --cache DIR`: builds (or reuses) the octree of a scan in a cache
+// directory.
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -85,11 +86,10 @@ Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double thre
     stats = std::move(*computed);
   }
   for (int c = 0; c < info.channel_count(); ++c) {
-    volume::ValueMap map = volume::FixedValueMap(info.dtype == volume::DataType::kUint8 ||
-                                                         info.dtype == volume::DataType::kInt8 ||
-                                                         narrow
-                                                     ? info.dtype
-                                                     : volume::DataType::kUint16);
+    volume::ValueMap map = volume::FixedValueMap(
+        info.dtype == volume::DataType::kUint8 || info.dtype == volume::DataType::kInt8 || narrow
+            ? info.dtype
+            : volume::DataType::kUint16);
     if (!narrow) {
       const io::ChannelStats& s = stats->channels[c];
       const double lo = s.count ? s.min : 0, hi = s.count ? s.max : 0;
@@ -119,19 +119,22 @@ int64_t TestKillAfterPlanes() {
 
 int RunBuild(std::span<const std::string> args) {
   const auto start = std::chrono::steady_clock::now();
-  Flags flags("octoscope build INPUT --cache DIR [options]",
-              "Builds the multi-resolution octree of INPUT (any format of 'octoscope info') into the\n"
-              "cache directory DIR, slab by slab, within a RAM budget; reuses DIR when it already\n"
-              "holds a complete octree of the same scan built with the same parameters. Prints one\n"
-              "JSON line at the end (fields in docs/cli.md).");
+  Flags flags(
+      "octoscope build INPUT --cache DIR [options]",
+      "Builds the multi-resolution octree of INPUT (any format of 'octoscope info') into the\n"
+      "cache directory DIR, slab by slab, within a RAM budget; reuses DIR when it already\n"
+      "holds a complete octree of the same scan built with the same parameters. Prints one\n"
+      "JSON line at the end (fields in docs/cli.md).");
   flags.SetPositionals("INPUT", 1, 1);
   flags.AddValue("cache", "DIR", "cache directory (created if missing)");
   flags.AddValue("brick", "N|X,Y,Z", "brick size in voxels, even", "64");
-  flags.AddValue("threshold", "F",
-                 "homogeneity threshold, a fraction of each channel's value range (0: only exactly\n"
-                 "                            constant bricks are pruned)",
-                 "0.05");
-  flags.AddValue("ram-mb", "N", "RAM budget in MiB for pages and slabs", "a quarter of RAM, <= 4096");
+  flags.AddValue(
+      "threshold", "F",
+      "homogeneity threshold, a fraction of each channel's value range (0: only exactly\n"
+      "                            constant bricks are pruned)",
+      "0.05");
+  flags.AddValue("ram-mb", "N", "RAM budget in MiB for pages and slabs",
+                 "a quarter of RAM, <= 4096");
   flags.AddValue("threads", "N", "reader threads", "one per channel, at least 2");
   AddVolumeFlags(flags);
   if (Status s = flags.Parse(args); !s.ok()) return Usage(s.message(), flags);
@@ -189,8 +192,8 @@ int RunBuild(std::span<const std::string> args) {
       bar.Update(p.planes_done);
       if (kill_after >= 0 && p.planes_done >= static_cast<uint64_t>(kill_after)) raise(SIGKILL);
     };
-    Status built = octree::BuildOctree(**source, (*cache)->mapping().value_maps,
-                                       (*cache)->octree(), build_options);
+    Status built = octree::BuildOctree(**source, (*cache)->mapping().value_maps, (*cache)->octree(),
+                                       build_options);
     bar.Finish();
     if (!built.ok()) return Fail(input, built);
     if (kill_after == static_cast<int64_t>(info.size[2]) * info.channel_count() + 1) raise(SIGKILL);
@@ -200,8 +203,7 @@ int RunBuild(std::span<const std::string> args) {
   protocol::BuildReport report;
   report.stats = (*cache)->octree().stats();
   report.input_bytes = info.VoxelBytes();
-  report.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   report.mb_per_s = report.seconds > 0 ? report.input_bytes / report.seconds / 1e6 : 0;
   report.peak_rss_mb = PeakRssMb();
   report.ram_budget_mb = static_cast<double>(*ram_mb);

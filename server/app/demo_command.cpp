@@ -69,10 +69,12 @@ int RunDemo(std::span<const std::string> args) {
   flags.AddValue("compression", "C", "none, deflate, zstd or lzw", "deflate");
   flags.AddValue("name", "NAME", "file name without .ome.tif", "demo-embryo");
   flags.AddValue("embryo-percent", "P",
-                 "how much of the box the embryo spans per axis, 1..100 (small: a sparse scan)", "92");
-  flags.AddValue("stats-json", "FILE",
-                 "also write `info --json --stats` of the generated voxels (computed from the\n"
-                 "                            generator, not the file: a reference for tests and benchmarks)");
+                 "how much of the box the embryo spans per axis, 1..100 (small: a sparse scan)",
+                 "92");
+  flags.AddValue(
+      "stats-json", "FILE",
+      "also write `info --json --stats` of the generated voxels (computed from the\n"
+      "                            generator, not the file: a reference for tests and benchmarks)");
   if (Status s = flags.Parse(args); !s.ok()) return UsageError(s.message(), flags);
   if (flags.help_requested()) {
     std::printf("%s", flags.Help().c_str());

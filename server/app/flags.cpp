@@ -62,8 +62,8 @@ Status Flags::Parse(std::span<const std::string> args) {
   int n = static_cast<int>(positionals_.size());
   if (n < min_positionals_) return InvalidArgumentError("missing " + positional_synopsis_);
   if (n > max_positionals_) {
-    return InvalidArgumentError("unexpected argument '" + Printable(positionals_[max_positionals_]) +
-                                "'");
+    return InvalidArgumentError("unexpected argument '" +
+                                Printable(positionals_[max_positionals_]) + "'");
   }
   return Status::Ok();
 }
@@ -97,7 +97,8 @@ Result<int64_t> Flags::GetInt(const std::string& name, int64_t fallback, int64_t
   auto text = Get(name);
   if (!text) return fallback;
   auto value = ParseInt64(*text);
-  if (!value) return InvalidArgumentError("--" + name + ": '" + Printable(*text) + "' is not an integer");
+  if (!value)
+    return InvalidArgumentError("--" + name + ": '" + Printable(*text) + "' is not an integer");
   if (*value < min || *value > max) {
     return InvalidArgumentError("--" + name + ": " + std::to_string(*value) + " is outside [" +
                                 std::to_string(min) + ", " + std::to_string(max) + "]");
@@ -109,7 +110,8 @@ Result<double> Flags::GetDouble(const std::string& name, double fallback) const 
   auto text = Get(name);
   if (!text) return fallback;
   auto value = ParseDouble(*text);
-  if (!value) return InvalidArgumentError("--" + name + ": '" + Printable(*text) + "' is not a number");
+  if (!value)
+    return InvalidArgumentError("--" + name + ": '" + Printable(*text) + "' is not a number");
   return *value;
 }
 

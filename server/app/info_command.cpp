@@ -46,7 +46,8 @@ void PrintHuman(const volume::VolumeInfo& info, const std::optional<io::VolumeSt
   std::printf("time point  %d of %d\n", info.time, info.time_points);
   std::printf("bytes       %llu\n", static_cast<unsigned long long>(info.VoxelBytes()));
   for (int c = 0; c < info.channel_count(); ++c) {
-    std::printf("channel %d   %s", c, info.channels[c].name.empty() ? "(unnamed)" : info.channels[c].name.c_str());
+    std::printf("channel %d   %s", c,
+                info.channels[c].name.empty() ? "(unnamed)" : info.channels[c].name.c_str());
     if (stats) {
       const io::ChannelStats& s = stats->channels[c];
       std::printf("  min %.10g  max %.10g  mean %.10g", s.min, s.max, s.mean);
@@ -59,11 +60,12 @@ void PrintHuman(const volume::VolumeInfo& info, const std::optional<io::VolumeSt
 }  // namespace
 
 int RunInfo(std::span<const std::string> args) {
-  Flags flags("octoscope info INPUT [--json] [--stats] [--series N] [--time T]",
-              "Prints what INPUT holds: format, size, channels, sample type, spacing. INPUT is an\n"
-              "OME-TIFF (single file, any file of a multi-file set, or a .companion.ome), a TIFF or\n"
-              "BigTIFF stack, an ImageJ hyperstack, a folder of 2-D slices, a raw file with a .json\n"
-              "sidecar, or a Voreen .vvd. With --stats every voxel is read, slab by slab.");
+  Flags flags(
+      "octoscope info INPUT [--json] [--stats] [--series N] [--time T]",
+      "Prints what INPUT holds: format, size, channels, sample type, spacing. INPUT is an\n"
+      "OME-TIFF (single file, any file of a multi-file set, or a .companion.ome), a TIFF or\n"
+      "BigTIFF stack, an ImageJ hyperstack, a folder of 2-D slices, a raw file with a .json\n"
+      "sidecar, or a Voreen .vvd. With --stats every voxel is read, slab by slab.");
   flags.SetPositionals("INPUT", 1, 1);
   flags.AddSwitch("json", "print one JSON object (fields in docs/cli.md)");
   flags.AddSwitch("stats", "read all voxels and add per-channel min, max and mean");

@@ -26,10 +26,11 @@ constexpr Command kCommands[] = {
 };
 
 void PrintUsage(std::FILE* out) {
-  std::fprintf(out,
-               "usage: octoscope COMMAND [ARGS]\n\n"
-               "Octoscope reads multi-channel 3-D microscopy scans (OME-TIFF, TIFF/BigTIFF, ImageJ\n"
-               "hyperstacks, slice folders, raw) slab by slab.\n\ncommands:\n");
+  std::fprintf(
+      out,
+      "usage: octoscope COMMAND [ARGS]\n\n"
+      "Octoscope reads multi-channel 3-D microscopy scans (OME-TIFF, TIFF/BigTIFF, ImageJ\n"
+      "hyperstacks, slice folders, raw) slab by slab.\n\ncommands:\n");
   for (const Command& c : kCommands) std::fprintf(out, "  %-8s %s\n", c.name, c.summary);
   std::fprintf(out, "\n'octoscope COMMAND --help' describes each command.\n");
 }

@@ -27,7 +27,8 @@ Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags) {
       if (TrimWhitespace(parts[a]) == "-") continue;
       auto v = ParseDouble(parts[a]);
       if (!v || !std::isfinite(*v) || *v <= 0) {
-        return InvalidArgumentError("--spacing: '" + Printable(parts[a]) + "' is not a positive number");
+        return InvalidArgumentError("--spacing: '" + Printable(parts[a]) +
+                                    "' is not a positive number");
       }
       options.spacing_um[a] = *v;
     }

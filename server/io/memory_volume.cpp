@@ -18,8 +18,8 @@ MemoryVolume::MemoryVolume(const volume::VolumeInfo& info)
     : info_(info), data_(info.VoxelBytes()) {}
 
 size_t MemoryVolume::Offset(int channel, int64_t x, int64_t y, int64_t z) const {
-  size_t voxel = ((static_cast<size_t>(channel) * info_.size[2] + z) * info_.size[1] + y) *
-                     info_.size[0] + x;
+  size_t voxel =
+      ((static_cast<size_t>(channel) * info_.size[2] + z) * info_.size[1] + y) * info_.size[0] + x;
   return voxel * volume::BytesPerSample(info_.dtype);
 }
 

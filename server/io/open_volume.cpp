@@ -29,7 +29,7 @@ std::optional<fs::path> FindRawSidecar(const fs::path& raw) {
 }
 
 Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar,
-                                                        const OpenOptions& options) {
+                                                         const OpenOptions& options) {
   if (!options.load_raw_sidecar) {
     return UnsupportedError(sidecar.string() + ": JSON raw sidecars are not enabled");
   }

@@ -17,15 +17,15 @@
 namespace octoscope::io {
 
 struct RawLayout {
-  std::filesystem::path data_file;          // The raw file itself (absolute or sidecar-relative).
-  std::array<int64_t, 3> size{0, 0, 0};     // x, y, z.
+  std::filesystem::path data_file;       // The raw file itself (absolute or sidecar-relative).
+  std::array<int64_t, 3> size{0, 0, 0};  // x, y, z.
   int channels = 1;
-  std::vector<std::string> channel_names;   // Empty or one per channel.
+  std::vector<std::string> channel_names;  // Empty or one per channel.
   volume::DataType dtype = volume::DataType::kUint16;
   bool big_endian = false;
   // true: c fastest (x0c0 x0c1 … x1c0 …); false: planar, one whole volume per channel.
   bool interleaved = false;
-  uint64_t header_bytes = 0;                // Bytes to skip at the start of the file.
+  uint64_t header_bytes = 0;  // Bytes to skip at the start of the file.
   std::array<std::optional<double>, 3> spacing_um;
 };
 

@@ -23,8 +23,8 @@ Status CheckSlabRequest(const volume::VolumeInfo& info, int channel, int64_t z0,
     return OutOfRangeError("slab z " + std::to_string(z0) + "+" + std::to_string(nz) +
                            " outside 0.." + std::to_string(info.size[2]));
   }
-  uint64_t want = info.PlaneVoxels() * static_cast<uint64_t>(nz) *
-                  volume::BytesPerSample(info.dtype);
+  uint64_t want =
+      info.PlaneVoxels() * static_cast<uint64_t>(nz) * volume::BytesPerSample(info.dtype);
   if (out_size != want) {
     return InvalidArgumentError("slab buffer holds " + std::to_string(out_size) +
                                 " bytes, the slab needs " + std::to_string(want));

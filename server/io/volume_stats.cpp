@@ -39,9 +39,9 @@ struct Accumulator {
 // The widest partial sum that cannot overflow over one chunk: 32 bits for 8/16-bit samples (the
 // fast path, which vectorises well), 64 bits for 32-bit samples.
 template <typename T>
-using ChunkSum = std::conditional_t<(sizeof(T) <= 2),
-                                    std::conditional_t<std::is_signed_v<T>, int32_t, uint32_t>,
-                                    int64_t>;
+using ChunkSum =
+    std::conditional_t<(sizeof(T) <= 2), std::conditional_t<std::is_signed_v<T>, int32_t, uint32_t>,
+                       int64_t>;
 
 // Integer samples: chunks small enough that the partial sum cannot overflow, so the inner loop is
 // plain adds/min/max over one type, which the compiler vectorises.
@@ -94,9 +94,7 @@ void AccumulateFloats(const std::byte* data, size_t n, Accumulator& acc) {
 
 // The common microscopy type gets an AVX2 clone picked at load time (GCC function multiversioning):
 // unsigned 16-bit min/max are single instructions there, and twice as wide.
-OCTO_TARGET_CLONES_AVX2 void AccumulateUint16(const std::byte* data,
-                                                                        size_t n,
-                                                                        Accumulator& acc) {
+OCTO_TARGET_CLONES_AVX2 void AccumulateUint16(const std::byte* data, size_t n, Accumulator& acc) {
   AccumulateInts<uint16_t>(data, n, acc);
 }
 
@@ -113,14 +111,22 @@ void ReleaseMappedPages(std::span<const std::byte> bytes) {
 
 void Accumulate(DataType type, const std::byte* data, size_t n, Accumulator& acc) {
   switch (type) {
-    case DataType::kUint8: return AccumulateInts<uint8_t>(data, n, acc);
-    case DataType::kInt8: return AccumulateInts<int8_t>(data, n, acc);
-    case DataType::kUint16: return AccumulateUint16(data, n, acc);
-    case DataType::kInt16: return AccumulateInts<int16_t>(data, n, acc);
-    case DataType::kUint32: return AccumulateInts<uint32_t>(data, n, acc);
-    case DataType::kInt32: return AccumulateInts<int32_t>(data, n, acc);
-    case DataType::kFloat32: return AccumulateFloats<float>(data, n, acc);
-    case DataType::kFloat64: return AccumulateFloats<double>(data, n, acc);
+    case DataType::kUint8:
+      return AccumulateInts<uint8_t>(data, n, acc);
+    case DataType::kInt8:
+      return AccumulateInts<int8_t>(data, n, acc);
+    case DataType::kUint16:
+      return AccumulateUint16(data, n, acc);
+    case DataType::kInt16:
+      return AccumulateInts<int16_t>(data, n, acc);
+    case DataType::kUint32:
+      return AccumulateInts<uint32_t>(data, n, acc);
+    case DataType::kInt32:
+      return AccumulateInts<int32_t>(data, n, acc);
+    case DataType::kFloat32:
+      return AccumulateFloats<float>(data, n, acc);
+    case DataType::kFloat64:
+      return AccumulateFloats<double>(data, n, acc);
   }
 }
 
@@ -289,11 +295,11 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
   // Two buffers in flight: the reader fills one while this thread sums the other.
   std::mutex mutex;
   std::condition_variable cv;
-  std::optional<Slab> full;       // GUARDED_BY(mutex): ready for summing.
-  std::vector<Slab> empty(2);     // GUARDED_BY(mutex): free buffers.
-  bool reader_done = false;       // GUARDED_BY(mutex)
-  bool stop = false;              // GUARDED_BY(mutex): set when the consumer gives up.
-  Status read_status;             // GUARDED_BY(mutex)
+  std::optional<Slab> full;    // GUARDED_BY(mutex): ready for summing.
+  std::vector<Slab> empty(2);  // GUARDED_BY(mutex): free buffers.
+  bool reader_done = false;    // GUARDED_BY(mutex)
+  bool stop = false;           // GUARDED_BY(mutex): set when the consumer gives up.
+  Status read_status;          // GUARDED_BY(mutex)
 
   // Ends the reader with `status`; called at most once, from the reader thread.
   auto finish_reader = [&](Status status) {

@@ -86,7 +86,8 @@ Result<SourceIdentity> ComputeSourceIdentity(const fs::path& input) {
     if (ec) return IoError(input.string() + ": cannot list: " + ec.message());
     std::sort(files.begin(), files.end());
     for (const fs::path& f : files) {
-      OCTO_RETURN_IF_ERROR(HashFile(f, fs::relative(f, input, ec).string(), id.hash, id.file_bytes));
+      OCTO_RETURN_IF_ERROR(
+          HashFile(f, fs::relative(f, input, ec).string(), id.hash, id.file_bytes));
     }
     return id;
   }
@@ -147,7 +148,8 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
   for (size_t i = 1; i < lines.size(); ++i) {
     std::vector<std::string_view> f = Split(lines[i], ' ');
     const std::string key(f[0]);
-    if (key != "value_map" && seen[key]++ > 0) return CorruptError("MANIFEST repeats '" + key + "'");
+    if (key != "value_map" && seen[key]++ > 0)
+      return CorruptError("MANIFEST repeats '" + key + "'");
     if (key == "state") {
       if (f.size() != 2 || f[1] != "complete") return bad(lines[i]);
     } else if (key == "source_hash" || key == "nodes_checksum") {
@@ -194,7 +196,8 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
       auto stored = volume::DataTypeFromNumpyName(f[2]);
       auto offset = ParseDouble(f[3]);
       auto scale = ParseDouble(f[4]);
-      if (!c || !stored || !offset || !scale || *c != static_cast<int64_t>(m.mapping.value_maps.size())) {
+      if (!c || !stored || !offset || !scale ||
+          *c != static_cast<int64_t>(m.mapping.value_maps.size())) {
         return bad(lines[i]);
       }
       volume::ValueMap map;
@@ -206,9 +209,9 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
       return CorruptError("MANIFEST has an unknown key '" + Printable(key) + "'");
     }
   }
-  for (const char* key : {"state", "source_hash", "source_bytes", "size", "channels", "dtype",
-                          "series", "time", "brick", "threshold", "value_range", "page_bytes",
-                          "nodes_checksum"}) {
+  for (const char* key :
+       {"state", "source_hash", "source_bytes", "size", "channels", "dtype", "series", "time",
+        "brick", "threshold", "value_range", "page_bytes", "nodes_checksum"}) {
     if (seen[key] == 0) return CorruptError(std::string("MANIFEST lacks '") + key + "'");
   }
   if (m.mapping.value_maps.size() != static_cast<size_t>(channels) ||
@@ -245,11 +248,9 @@ OctreeCache::~OctreeCache() {
   store_.reset();
 }
 
-Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(const fs::path& dir,
-                                                       const SourceIdentity& source,
-                                                       const CacheParams& params,
-                                                       uint64_t ram_bytes,
-                                                       const std::function<Result<ValueMapping>()>& derive) {
+Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
+    const fs::path& dir, const SourceIdentity& source, const CacheParams& params,
+    uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive) {
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return IoError(dir.string() + ": cannot create the cache directory: " + ec.message());
@@ -261,19 +262,20 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(const fs::path& dir,
   options.bytes_per_sample =
       static_cast<int>(volume::BytesPerSample(volume::StoredTypeFor(params.info.dtype)));
   options.homogeneity_threshold = params.threshold;
-  OCTO_ASSIGN_OR_RETURN(BrickGeometry geometry,
-                        BrickGeometry::Create({Vec3{params.info.size[0], params.info.size[1],
-                                                    params.info.size[2]},
-                                               params.brick_size, params.info.channel_count(),
-                                               options.bytes_per_sample}));
+  OCTO_ASSIGN_OR_RETURN(
+      BrickGeometry geometry,
+      BrickGeometry::Create({Vec3{params.info.size[0], params.info.size[1], params.info.size[2]},
+                             params.brick_size, params.info.channel_count(),
+                             options.bytes_per_sample}));
   const uint64_t page_bytes = PageBytesFor(geometry.brick_bytes());
   // Construction pins a few pages at once (a brick and its neighbours' aprons): a budget of fewer
   // pages could wait forever, so refuse it up front.
   if (ram_bytes < kMinPages * page_bytes) {
-    return ResourceExhaustedError(
-        "a RAM budget of " + std::to_string(ram_bytes >> 20) + " MiB for brick pages holds fewer than " +
-        std::to_string(kMinPages) + " pages of " + std::to_string(page_bytes >> 10) +
-        " KiB; give more RAM (--ram-mb) or use smaller bricks (--brick)");
+    return ResourceExhaustedError("a RAM budget of " + std::to_string(ram_bytes >> 20) +
+                                  " MiB for brick pages holds fewer than " +
+                                  std::to_string(kMinPages) + " pages of " +
+                                  std::to_string(page_bytes >> 10) +
+                                  " KiB; give more RAM (--ram-mb) or use smaller bricks (--brick)");
   }
 
   // 1. A complete, matching cache is reused as it is.
@@ -289,8 +291,8 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(const fs::path& dir,
       cache->rebuild_reason_ = "parameters changed";
     } else {
       auto nodes = ReadSmallFile(dir / kNodesName, kMaxNodesBytes);
-      auto store = paging::OpenFilePageStore(dir / kPoolName, page_bytes,
-                                             paging::OpenMode::kOpenExisting);
+      auto store =
+          paging::OpenFilePageStore(dir / kPoolName, page_bytes, paging::OpenMode::kOpenExisting);
       if (!nodes.ok() || !store.ok() || Fnv1a64(*nodes) != manifest->nodes_checksum) {
         cache->rebuild_reason_ = "damaged (node table or pool missing or altered)";
       } else {
@@ -327,8 +329,9 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(const fs::path& dir,
   fs::remove(dir / kNodesName, ec);
   OCTO_RETURN_IF_ERROR(SyncDirectory(dir));
   OCTO_RETURN_IF_ERROR(WriteFileDurably(dir / kBuildingName, "building\n"));
-  OCTO_ASSIGN_OR_RETURN(cache->store_, paging::OpenFilePageStore(dir / kPoolName, page_bytes,
-                                                                 paging::OpenMode::kCreateTruncate));
+  OCTO_ASSIGN_OR_RETURN(
+      cache->store_,
+      paging::OpenFilePageStore(dir / kPoolName, page_bytes, paging::OpenMode::kCreateTruncate));
   cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
   OCTO_ASSIGN_OR_RETURN(cache->octree_,
                         Octree::Create(geometry, options, cache->page_cache_.get()));

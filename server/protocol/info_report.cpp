@@ -2,7 +2,6 @@
 
 #include <cmath>
 #include <cstdio>
-
 #include <nlohmann/json.hpp>
 
 #include "volume/value_map.h"
@@ -38,7 +37,8 @@ std::string InfoReportJson(const volume::VolumeInfo& info,
   j["dtype"] = std::string(volume::NumpyName(info.dtype));
   j["stored_dtype"] = std::string(volume::NumpyName(volume::StoredTypeFor(info.dtype)));
   nlohmann::json spacing = nlohmann::json::array();
-  for (const auto& s : info.spacing_um) spacing.push_back(s ? nlohmann::json(*s) : nlohmann::json());
+  for (const auto& s : info.spacing_um)
+    spacing.push_back(s ? nlohmann::json(*s) : nlohmann::json());
   j["spacing"] = spacing;
   j["bytes"] = info.VoxelBytes();
   j["series"] = info.series;

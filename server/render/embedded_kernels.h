@@ -1,6 +1,6 @@
-// The OpenCL C sources of kernels/*.cl (and the headers kernels/*.h they include), compiled into the binary at build time
-// (cmake/embed_kernels.cmake), so programs can be built without files at run time and the kernels
-// stay plain .cl files that editors and offline compilers understand.
+// The OpenCL C sources of kernels/*.cl (and the headers kernels/*.h they include), compiled into
+// the binary at build time (cmake/embed_kernels.cmake), so programs can be built without files at
+// run time and the kernels stay plain .cl files that editors and offline compilers understand.
 //
 // Thread safety: immutable data.
 #ifndef OCTOSCOPE_RENDER_EMBEDDED_KERNELS_H_

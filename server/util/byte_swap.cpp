@@ -1,10 +1,10 @@
 #include "util/byte_swap.h"
 
-#include "util/target_clones.h"
-
 #include <algorithm>
 #include <cstdint>
 #include <cstring>
+
+#include "util/target_clones.h"
 
 namespace octoscope {
 
@@ -13,7 +13,8 @@ namespace octoscope {
 #if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
 OCTO_TARGET_CLONES_AVX2  // Twice the width where the CPU has it.
 #endif
-void SwapBytesInPlace(std::span<std::byte> data, size_t sample_bytes) {
+    void
+    SwapBytesInPlace(std::span<std::byte> data, size_t sample_bytes) {
   if (sample_bytes < 2) return;
   std::byte* p = data.data();
   const size_t words = data.size() / 8;

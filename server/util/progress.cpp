@@ -6,8 +6,8 @@
 
 namespace octoscope {
 
-ProgressBar::ProgressBar(std::FILE* stream, std::string unit, uint64_t total,
-                         double bytes_per_unit, bool enabled)
+ProgressBar::ProgressBar(std::FILE* stream, std::string unit, uint64_t total, double bytes_per_unit,
+                         bool enabled)
     : stream_(stream),
       unit_(std::move(unit)),
       total_(total),
@@ -39,8 +39,7 @@ void ProgressBar::Finish() {
 }
 
 void ProgressBar::Draw(bool final_draw) {
-  double seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
   double fraction = total_ ? std::min(1.0, static_cast<double>(done_) / total_) : 1.0;
   constexpr int kWidth = 30;
   int filled = static_cast<int>(fraction * kWidth);

@@ -5,8 +5,8 @@
 #ifndef OCTOSCOPE_UTIL_RESULT_H_
 #define OCTOSCOPE_UTIL_RESULT_H_
 
-#include <cstdlib>
 #include <cstdio>
+#include <cstdlib>
 #include <utility>
 #include <variant>
 
@@ -18,7 +18,7 @@ template <typename T>
 class [[nodiscard]] Result {
  public:
   // Implicit on purpose, so functions can `return value;` or `return SomeError(...);`.
-  Result(T value) : data_(std::move(value)) {}  // NOLINT
+  Result(T value) : data_(std::move(value)) {}        // NOLINT
   Result(Status status) : data_(std::move(status)) {  // NOLINT
     // An OK status carries no value: that is a bug in the caller.
     if (std::get<Status>(data_).ok()) data_ = InternalError("Result constructed from OK status");
@@ -41,7 +41,8 @@ class [[nodiscard]] Result {
   T& Get() {
     if (!ok()) {
       // Reading a missing value is a programming error, never an expected failure.
-      std::fprintf(stderr, "Result::value() on error: %s\n", std::get<Status>(data_).ToString().c_str());
+      std::fprintf(stderr, "Result::value() on error: %s\n",
+                   std::get<Status>(data_).ToString().c_str());
       std::abort();
     }
     return std::get<T>(data_);

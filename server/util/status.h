@@ -1,6 +1,6 @@
 // Status: the outcome of an operation that can fail in an expected way (a missing or corrupt file,
-// an unsupported layout, a hostile message). Either OK, or a code plus a human-readable message that
-// names the object and the problem ("corrupt: a.tif: strip 3 is truncated").
+// an unsupported layout, a hostile message). Either OK, or a code plus a human-readable message
+// that names the object and the problem ("corrupt: a.tif: strip 3 is truncated").
 //
 // Thread safety: a Status is an immutable value; copies may be used from any thread.
 #ifndef OCTOSCOPE_UTIL_STATUS_H_
@@ -60,10 +60,10 @@ Status CancelledError(std::string message);
 Status InternalError(std::string message);
 
 // Returns from the enclosing function when `expr` (a Status) is not OK.
-#define OCTO_RETURN_IF_ERROR(expr)                 \
-  do {                                             \
-    ::octoscope::Status octo_status_ = (expr);     \
-    if (!octo_status_.ok()) return octo_status_;   \
+#define OCTO_RETURN_IF_ERROR(expr)               \
+  do {                                           \
+    ::octoscope::Status octo_status_ = (expr);   \
+    if (!octo_status_.ok()) return octo_status_; \
   } while (0)
 
 }  // namespace octoscope

@@ -9,27 +9,39 @@ namespace octoscope::volume {
 size_t BytesPerSample(DataType type) {
   switch (type) {
     case DataType::kUint8:
-    case DataType::kInt8: return 1;
+    case DataType::kInt8:
+      return 1;
     case DataType::kUint16:
-    case DataType::kInt16: return 2;
+    case DataType::kInt16:
+      return 2;
     case DataType::kUint32:
     case DataType::kInt32:
-    case DataType::kFloat32: return 4;
-    case DataType::kFloat64: return 8;
+    case DataType::kFloat32:
+      return 4;
+    case DataType::kFloat64:
+      return 8;
   }
   return 1;
 }
 
 std::string_view NumpyName(DataType type) {
   switch (type) {
-    case DataType::kUint8: return "uint8";
-    case DataType::kInt8: return "int8";
-    case DataType::kUint16: return "uint16";
-    case DataType::kInt16: return "int16";
-    case DataType::kUint32: return "uint32";
-    case DataType::kInt32: return "int32";
-    case DataType::kFloat32: return "float32";
-    case DataType::kFloat64: return "float64";
+    case DataType::kUint8:
+      return "uint8";
+    case DataType::kInt8:
+      return "int8";
+    case DataType::kUint16:
+      return "uint16";
+    case DataType::kInt16:
+      return "int16";
+    case DataType::kUint32:
+      return "uint32";
+    case DataType::kInt32:
+      return "int32";
+    case DataType::kFloat32:
+      return "float32";
+    case DataType::kFloat64:
+      return "float64";
   }
   return "unknown";
 }
@@ -60,26 +72,40 @@ double TypeMin(DataType type) {
   switch (type) {
     case DataType::kUint8:
     case DataType::kUint16:
-    case DataType::kUint32: return 0;
-    case DataType::kInt8: return std::numeric_limits<int8_t>::min();
-    case DataType::kInt16: return std::numeric_limits<int16_t>::min();
-    case DataType::kInt32: return std::numeric_limits<int32_t>::min();
-    case DataType::kFloat32: return std::numeric_limits<float>::lowest();
-    case DataType::kFloat64: return std::numeric_limits<double>::lowest();
+    case DataType::kUint32:
+      return 0;
+    case DataType::kInt8:
+      return std::numeric_limits<int8_t>::min();
+    case DataType::kInt16:
+      return std::numeric_limits<int16_t>::min();
+    case DataType::kInt32:
+      return std::numeric_limits<int32_t>::min();
+    case DataType::kFloat32:
+      return std::numeric_limits<float>::lowest();
+    case DataType::kFloat64:
+      return std::numeric_limits<double>::lowest();
   }
   return 0;
 }
 
 double TypeMax(DataType type) {
   switch (type) {
-    case DataType::kUint8: return std::numeric_limits<uint8_t>::max();
-    case DataType::kUint16: return std::numeric_limits<uint16_t>::max();
-    case DataType::kUint32: return std::numeric_limits<uint32_t>::max();
-    case DataType::kInt8: return std::numeric_limits<int8_t>::max();
-    case DataType::kInt16: return std::numeric_limits<int16_t>::max();
-    case DataType::kInt32: return std::numeric_limits<int32_t>::max();
-    case DataType::kFloat32: return std::numeric_limits<float>::max();
-    case DataType::kFloat64: return std::numeric_limits<double>::max();
+    case DataType::kUint8:
+      return std::numeric_limits<uint8_t>::max();
+    case DataType::kUint16:
+      return std::numeric_limits<uint16_t>::max();
+    case DataType::kUint32:
+      return std::numeric_limits<uint32_t>::max();
+    case DataType::kInt8:
+      return std::numeric_limits<int8_t>::max();
+    case DataType::kInt16:
+      return std::numeric_limits<int16_t>::max();
+    case DataType::kInt32:
+      return std::numeric_limits<int32_t>::max();
+    case DataType::kFloat32:
+      return std::numeric_limits<float>::max();
+    case DataType::kFloat64:
+      return std::numeric_limits<double>::max();
   }
   return 0;
 }

@@ -30,14 +30,22 @@ void ConvertTyped(const ValueMap& map, const std::byte* in, std::byte* out, size
 template <typename Out>
 void ConvertFrom(const ValueMap& map, const std::byte* in, std::byte* out, size_t count) {
   switch (map.file_type) {
-    case DataType::kUint8: return ConvertTyped<uint8_t, Out>(map, in, out, count);
-    case DataType::kInt8: return ConvertTyped<int8_t, Out>(map, in, out, count);
-    case DataType::kUint16: return ConvertTyped<uint16_t, Out>(map, in, out, count);
-    case DataType::kInt16: return ConvertTyped<int16_t, Out>(map, in, out, count);
-    case DataType::kUint32: return ConvertTyped<uint32_t, Out>(map, in, out, count);
-    case DataType::kInt32: return ConvertTyped<int32_t, Out>(map, in, out, count);
-    case DataType::kFloat32: return ConvertTyped<float, Out>(map, in, out, count);
-    case DataType::kFloat64: return ConvertTyped<double, Out>(map, in, out, count);
+    case DataType::kUint8:
+      return ConvertTyped<uint8_t, Out>(map, in, out, count);
+    case DataType::kInt8:
+      return ConvertTyped<int8_t, Out>(map, in, out, count);
+    case DataType::kUint16:
+      return ConvertTyped<uint16_t, Out>(map, in, out, count);
+    case DataType::kInt16:
+      return ConvertTyped<int16_t, Out>(map, in, out, count);
+    case DataType::kUint32:
+      return ConvertTyped<uint32_t, Out>(map, in, out, count);
+    case DataType::kInt32:
+      return ConvertTyped<int32_t, Out>(map, in, out, count);
+    case DataType::kFloat32:
+      return ConvertTyped<float, Out>(map, in, out, count);
+    case DataType::kFloat64:
+      return ConvertTyped<double, Out>(map, in, out, count);
   }
 }
 
@@ -52,7 +60,9 @@ ValueMap FixedValueMap(DataType file_type) {
   ValueMap map;
   map.file_type = file_type;
   map.stored_type = StoredTypeFor(file_type);
-  map.offset = file_type == DataType::kInt8 ? -128.0 : file_type == DataType::kInt16 ? -32768.0 : 0.0;
+  map.offset = file_type == DataType::kInt8    ? -128.0
+               : file_type == DataType::kInt16 ? -32768.0
+                                               : 0.0;
   map.scale = 1.0;
   return map;
 }

@@ -15,8 +15,9 @@ uint64_t VolumeInfo::VoxelBytes() const {
 
 Status VolumeInfo::Validate() const {
   for (int a = 0; a < 3; ++a) {
-    if (size[a] < 1) return CorruptError("size along " + std::string(1, "xyz"[a]) + " is " +
-                                         std::to_string(size[a]));
+    if (size[a] < 1)
+      return CorruptError("size along " + std::string(1, "xyz"[a]) + " is " +
+                          std::to_string(size[a]));
     if (spacing_um[a] && !(std::isfinite(*spacing_um[a]) && *spacing_um[a] > 0)) {
       return CorruptError("spacing along " + std::string(1, "xyz"[a]) + " is not positive");
     }

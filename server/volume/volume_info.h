@@ -26,15 +26,15 @@ struct Rgba {
 };
 
 struct ChannelInfo {
-  std::string name;            // As the file names it; "" when unnamed.
-  std::optional<Rgba> color;   // As the file gives it; nullopt when none.
+  std::string name;           // As the file names it; "" when unnamed.
+  std::optional<Rgba> color;  // As the file gives it; nullopt when none.
 };
 
 struct VolumeInfo {
-  std::string format;                    // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw".
+  std::string format;  // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw".
   std::array<int64_t, 3> size{1, 1, 1};  // Voxels along x, y, z.
   std::vector<ChannelInfo> channels;
-  DataType dtype = DataType::kUint16;    // The file's sample type.
+  DataType dtype = DataType::kUint16;               // The file's sample type.
   std::array<std::optional<double>, 3> spacing_um;  // Voxel pitch in micrometres, x, y, z.
   int series_count = 1;
   int series = 0;
