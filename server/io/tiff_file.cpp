@@ -174,6 +174,34 @@ struct ReadRun {
   uint64_t bytes;
 };
 
+// How the current IFD's plane is cut into strips. All arithmetic is 64-bit: heights reach
+// 2^32 - 1, and RowsPerStrip 2^32 - 1 (or 0, or > height) means "one strip"; in 32 bits the strip
+// count of such a plane wraps to 0.
+struct StripLayout {
+  uint64_t height = 0;
+  uint64_t rows_per_strip = 0;
+  uint64_t strips_per_plane = 0;
+  uint64_t sample_planes = 1;  // Planar configuration: one run of strips per sample.
+  uint64_t strips = 0;         // TIFFNumberOfStrips: must equal strips_per_plane * sample_planes.
+  bool consistent() const { return strips_per_plane * sample_planes == strips; }
+};
+
+// REQUIRES: `tif` is positioned on the IFD `ifd` describes.
+StripLayout StripLayoutOf(TIFF* tif, const TiffIfd& ifd) {
+  StripLayout layout;
+  uint32_t rows_per_strip_tag = 0;
+  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip_tag);
+  layout.height = ifd.height;
+  layout.rows_per_strip = (rows_per_strip_tag == 0 || rows_per_strip_tag > layout.height)
+                              ? layout.height
+                              : rows_per_strip_tag;
+  layout.strips_per_plane = (layout.height + layout.rows_per_strip - 1) / layout.rows_per_strip;
+  layout.sample_planes = ifd.planar_config == PLANARCONFIG_SEPARATE ? ifd.samples_per_pixel : 1;
+  layout.strips = TIFFNumberOfStrips(tif);
+  // Both factors are < 2^32 and < 2^16: the product cannot overflow.
+  return layout;
+}
+
 }  // namespace
 
 struct TiffFile::Impl {
@@ -536,19 +564,11 @@ Status TiffFile::Impl::SelectIfd(const std::string& name, int index, const TiffI
 Status TiffFile::Impl::ReadStrips(const PlaneJob& job, std::unique_lock<std::mutex>& lock,
                                   bool swap) {
   const TiffIfd& ifd = job.ifd;
-  // Strip arithmetic in 64 bits: heights reach 2^32 - 1 and RowsPerStrip 2^32 - 1 means "one
-  // strip"; in 32 bits the strip count of such a plane wraps to 0.
-  uint32_t rows_per_strip_tag = 0;
-  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip_tag);
-  const uint64_t height = ifd.height;
-  const uint64_t rows_per_strip =
-      (rows_per_strip_tag == 0 || rows_per_strip_tag > height) ? height : rows_per_strip_tag;
-  const uint64_t strips_per_plane = (height + rows_per_strip - 1) / rows_per_strip;
-  const uint64_t sample_planes =
-      ifd.planar_config == PLANARCONFIG_SEPARATE ? ifd.samples_per_pixel : 1;
-  const uint64_t strips = TIFFNumberOfStrips(tif);
-  // Both factors are < 2^32 and < 2^16: no overflow.
-  if (strips_per_plane * sample_planes != strips) {
+  const StripLayout layout = StripLayoutOf(tif, ifd);
+  const uint64_t height = layout.height, rows_per_strip = layout.rows_per_strip;
+  const uint64_t strips_per_plane = layout.strips_per_plane;
+  const uint64_t sample_planes = layout.sample_planes, strips = layout.strips;
+  if (!layout.consistent()) {
     return CorruptError(job.name + ": IFD " + std::to_string(job.index) + " has " +
                         std::to_string(strips) + " strips, but " + std::to_string(height) +
                         " rows in strips of " + std::to_string(rows_per_strip) + " rows (x " +
@@ -789,16 +809,11 @@ std::optional<uint64_t> TiffFile::Impl::ContiguousPlaneOffset(const std::string&
   uint16_t fill_order = FILLORDER_MSB2LSB;
   TIFFGetFieldDefaulted(tif, TIFFTAG_FILLORDER, &fill_order);
   if (depth > 1 || fill_order != FILLORDER_MSB2LSB) return std::nullopt;
-  // The strip arithmetic of ReadStrips (64 bits; RowsPerStrip 0 or > height: one strip).
-  uint32_t rows_per_strip_tag = 0;
-  TIFFGetFieldDefaulted(tif, TIFFTAG_ROWSPERSTRIP, &rows_per_strip_tag);
-  const uint64_t height = ifd.height;
-  const uint64_t rows_per_strip =
-      (rows_per_strip_tag == 0 || rows_per_strip_tag > height) ? height : rows_per_strip_tag;
-  const uint64_t strips_per_plane = (height + rows_per_strip - 1) / rows_per_strip;
-  const uint64_t sample_planes =
-      ifd.planar_config == PLANARCONFIG_SEPARATE ? ifd.samples_per_pixel : 1;
-  if (strips_per_plane * sample_planes != TIFFNumberOfStrips(tif)) return std::nullopt;
+  // The same strip layout ReadStrips decodes.
+  const StripLayout layout = StripLayoutOf(tif, ifd);
+  if (!layout.consistent()) return std::nullopt;
+  const uint64_t height = layout.height, rows_per_strip = layout.rows_per_strip;
+  const uint64_t strips_per_plane = layout.strips_per_plane;
   const uint64_t bytes = volume::BytesPerSample(*ifd.dtype);
   const uint64_t row_bytes = uint64_t{ifd.width} * bytes;
   const uint64_t first = static_cast<uint64_t>(sample) * strips_per_plane;
