@@ -1,0 +1,626 @@
+#include "render/device_octree.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cstring>
+#include <limits>
+#include <set>
+#include <string>
+#include <tuple>
+#include <unordered_map>
+#include <unordered_set>
+#include <utility>
+
+#include "octree/node_encoding.h"
+#include "render/cl_call.h"
+
+namespace octoscope::render {
+
+namespace {
+
+constexpr uint32_t kNoNode = std::numeric_limits<uint32_t>::max();
+// Dirty entries closer than this many ids are written as one range (fewer, larger transfers).
+constexpr uint64_t kCoalesceGap = 16;
+
+// Nodes of `geometry` that can ever own a brick: the non-virtual nodes of every level.
+uint64_t MaxBrickNodes(const octree::BrickGeometry& geometry) {
+  uint64_t count = 0;
+  for (int level = 0; level <= geometry.root_level(); ++level) {
+    count += geometry.NonVirtualNodes(level).VoxelCount();
+  }
+  return count;
+}
+
+}  // namespace
+
+// All state of a DeviceOctree. Invariants:
+//  * live[id] == 1 exactly for the ids whose entry in `mirror` encodes a node (written from a
+//    snapshot of a live node); every other entry is all zero.
+//  * An entry's child group g is non-zero only when live[8g .. 8g+7] are all 1, and then
+//    group_owner[g] is that entry's id.
+//  * slot_of[id] == s  <=>  slot_node[s] == id; such an id is live and its entry has in_buffer
+//    set with slot s. Free slots are in free_slots and have slot_node == kNoNode.
+struct DeviceOctree::Impl {
+  const ComputeContext* cc = nullptr;
+  octree::Octree* tree = nullptr;
+  int channels = 1;
+  size_t words = 4;  // NodeWords(channels).
+  int bytes_per_sample = 2;
+  uint64_t device_brick_bytes = 0;  // brick_samples * 2: the device always holds uint16.
+
+  // --- Node buffer. ---
+  std::vector<uint32_t> mirror;  // capacity_nodes() * words.
+  std::vector<uint8_t> live;     // Per node id.
+  ClMem node_buffer;
+  bool realloc_nodes = true;  // The device buffer must be (re)created from the whole mirror.
+  std::vector<uint32_t> dirty;
+  std::vector<uint8_t> is_dirty;
+  std::set<uint32_t> retry;                            // Encoded childless; re-encode next Sync.
+  std::unordered_map<uint32_t, uint32_t> group_owner;  // Mirrored child group -> parent id.
+  std::set<uint32_t> todo;                             // Ids to (re-)encode in this pass.
+  std::unordered_map<uint32_t, octree::NodeSnapshot> snapshots;  // Read during this pass.
+
+  // --- Brick buffer. ---
+  std::vector<ClMem> bricks;
+  uint32_t slots_per_allocation = 1;
+  std::vector<uint32_t> slot_node;
+  std::vector<octree::NodeKey> slot_key;
+  std::vector<uint32_t> slot_used;   // Host copy of the stamps (max of upload frame, device).
+  std::vector<uint32_t> free_slots;  // Stack; the lowest slot on top.
+  std::unordered_map<uint32_t, uint32_t> slot_of;
+  std::set<uint32_t> stale;
+  std::vector<std::byte> raw;     // One stored brick as ReadBrick gives it.
+  std::vector<uint16_t> widened;  // The same as uint16 for uint8 trees.
+
+  // --- Feedback. ---
+  ClMem request_flags;
+  ClMem request_list;
+  ClMem slot_used_buffer;
+  uint32_t request_capacity = 0;
+  uint32_t frame = 0;
+
+  uint64_t capacity_nodes() const { return live.size(); }
+  std::span<uint32_t> Entry(uint32_t id) {
+    return std::span(mirror).subspan(static_cast<size_t>(id) * words, words);
+  }
+
+  void MarkDirty(uint32_t id) {
+    if (is_dirty[id] == 0) {
+      is_dirty[id] = 1;
+      dirty.push_back(id);
+    }
+  }
+
+  // Makes room for node `id` in the host mirror (the device buffer follows at Flush).
+  void EnsureCapacity(uint32_t id) {
+    if (id < capacity_nodes()) return;
+    // Grow by half again at least, so a growing tree reallocates O(log n) times.
+    const uint64_t old_groups = capacity_nodes() / 8;
+    const uint64_t needed_groups = uint64_t{id} / 8 + 1;
+    const uint64_t groups = std::max({needed_groups, old_groups + old_groups / 2, uint64_t{2}});
+    const uint64_t nodes = std::min<uint64_t>(groups * 8, uint64_t{kNoNode} + 1);
+    mirror.resize(nodes * words, 0);
+    live.resize(nodes, 0);
+    is_dirty.resize(nodes, 0);
+    realloc_nodes = true;
+  }
+
+  // Rewrites the residency bits of `id`'s entry from slot_of.
+  void WriteResidency(uint32_t id) {
+    if (id >= capacity_nodes() || live[id] == 0) return;
+    std::span<uint32_t> entry = Entry(id);
+    const auto it = slot_of.find(id);
+    entry[0] &= ~octree::kNodeInBufferBit;
+    entry[1] = 0;
+    if (it != slot_of.end()) {
+      entry[0] |= octree::kNodeInBufferBit | octree::kNodeHasBrickBit;
+      entry[1] = it->second;
+    }
+    MarkDirty(id);
+  }
+
+  // Empties `slot` (its node's entry loses in_buffer); with `to_free_list` it becomes free.
+  void ReleaseSlot(uint32_t slot, bool to_free_list) {
+    const uint32_t id = slot_node[slot];
+    if (id == kNoNode) return;
+    slot_node[slot] = kNoNode;
+    slot_of.erase(id);
+    stale.erase(id);
+    WriteResidency(id);
+    if (to_free_list) free_slots.push_back(slot);
+  }
+
+  // Node `id` is not live (any more): zero its entry, free its slot, and re-encode the parent
+  // whose mirrored child group contains it (that group is no longer fully written).
+  void NodeGone(uint32_t id) {
+    if (id >= capacity_nodes()) return;
+    if (const auto it = slot_of.find(id); it != slot_of.end()) ReleaseSlot(it->second, true);
+    stale.erase(id);
+    retry.erase(id);
+    snapshots.erase(id);
+    if (live[id] == 0) return;
+    if (id != 0) {
+      if (const auto it = group_owner.find(id / 8); it != group_owner.end())
+        todo.insert(it->second);
+    }
+    const uint32_t group = octree::Word0ChildGroup(Entry(id)[0]);
+    if (group != 0) {
+      if (const auto it = group_owner.find(group); it != group_owner.end() && it->second == id) {
+        group_owner.erase(it);
+      }
+    }
+    live[id] = 0;
+    const std::span<uint32_t> entry = Entry(id);
+    std::fill(entry.begin(), entry.end(), 0u);
+    MarkDirty(id);
+  }
+
+  // Writes `snap` (a live node) into its entry, enforcing the child-group invariant.
+  void Encode(const octree::NodeSnapshot& snap) {
+    const uint32_t id = snap.id;
+    // A resident brick stays only while the node still owns a brick at the same key (an id
+    // reused for another node after a delete must not show the old node's brick).
+    if (const auto it = slot_of.find(id); it != slot_of.end()) {
+      if (!snap.has_brick() || !(slot_key[it->second] == snap.key)) ReleaseSlot(it->second, true);
+    }
+    uint32_t group = snap.child_group;
+    if (group != 0) {
+      // Point at the group only once all 8 children are written in the mirror.
+      bool all_live = uint64_t{group} * 8 + 7 < capacity_nodes();
+      for (uint32_t o = 0; all_live && o < 8; ++o) all_live = live[group * 8 + o] != 0;
+      if (!all_live) group = 0;
+    }
+    if (group == 0 && snap.child_group != 0) {
+      retry.insert(id);
+    } else {
+      retry.erase(id);
+    }
+    const uint32_t old_group = octree::Word0ChildGroup(Entry(id)[0]);
+    if (old_group != 0 && old_group != group) {
+      if (const auto it = group_owner.find(old_group);
+          it != group_owner.end() && it->second == id) {
+        group_owner.erase(it);
+      }
+    }
+    if (group != 0) group_owner[group] = id;
+    octree::DeviceNode node;
+    node.has_brick = snap.has_brick();
+    node.child_group = group;
+    if (const auto it = slot_of.find(id); it != slot_of.end()) {
+      node.in_buffer = true;
+      node.brick_slot = it->second;
+    }
+    node.averages.reserve(snap.channels.size());
+    for (const octree::ChannelSummary& c : snap.channels) {
+      node.averages.push_back(octree::QuantizeAverage(c.avg, bytes_per_sample));
+    }
+    // Cannot fail: the entry has NodeWords(channels) words and the group is a 30-bit index.
+    (void)octree::EncodeNode(node, Entry(id));
+    live[id] = 1;
+    MarkDirty(id);
+  }
+
+  // Encodes every id in `todo` (and the pending retries) from its snapshot of this pass or a
+  // fresh read.
+  void EncodePending() {
+    todo.insert(retry.begin(), retry.end());
+    while (!todo.empty()) {
+      const uint32_t id = *todo.begin();
+      todo.erase(todo.begin());
+      if (id >= capacity_nodes() || live[id] == 0) continue;
+      std::optional<octree::NodeSnapshot> snap;
+      if (const auto it = snapshots.find(id); it != snapshots.end()) {
+        snap = std::move(it->second);
+        snapshots.erase(it);
+      } else {
+        snap = tree->GetNode(id);
+      }
+      if (!snap.has_value()) {
+        NodeGone(id);
+        continue;
+      }
+      Encode(*snap);
+    }
+    snapshots.clear();
+  }
+
+  // Sends the dirty entries to the device (or the whole mirror into a new buffer after growth).
+  Status Flush(uint64_t* entries_written) {
+    if (realloc_nodes) {
+      OCTO_ASSIGN_OR_RETURN(ClMem nodes,
+                            cc->CreateBuffer(CL_MEM_READ_WRITE, mirror.size() * 4, mirror.data()));
+      OCTO_ASSIGN_OR_RETURN(ClMem flags, cc->CreateBuffer(CL_MEM_READ_WRITE, capacity_nodes() * 4));
+      OCTO_RETURN_IF_ERROR(Fill(flags, capacity_nodes() * 4));
+      node_buffer = std::move(nodes);
+      request_flags = std::move(flags);
+      realloc_nodes = false;
+      for (uint32_t id : dirty) is_dirty[id] = 0;
+      dirty.clear();
+      if (entries_written != nullptr) *entries_written += capacity_nodes();
+      return Status::Ok();
+    }
+    std::sort(dirty.begin(), dirty.end());
+    // Coalesce near ranges: one transfer per run of dirty ids with small gaps.
+    size_t i = 0;
+    while (i < dirty.size()) {
+      size_t j = i + 1;
+      while (j < dirty.size() && dirty[j] - dirty[j - 1] <= kCoalesceGap) ++j;
+      const uint64_t first = dirty[i];
+      const uint64_t count = uint64_t{dirty[j - 1]} - first + 1;
+      OCTO_RETURN_IF_ERROR(cc->WriteBuffer(node_buffer, first * words * 4, count * words * 4,
+                                           mirror.data() + first * words));
+      i = j;
+    }
+    if (entries_written != nullptr) *entries_written += dirty.size();
+    for (uint32_t id : dirty) is_dirty[id] = 0;
+    dirty.clear();
+    return Status::Ok();
+  }
+
+  Status Fill(const ClMem& buffer, size_t bytes) const {
+    const cl_uint zero = 0;
+    OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(cc->queue(), buffer.get(), &zero, sizeof(zero), 0,
+                                                bytes, 0, nullptr, nullptr));
+    return cc->Finish();
+  }
+
+  // Writes the brick in `raw` into `slot` (widened to uint16 for uint8 trees).
+  Status WriteBrick(uint32_t slot) {
+    const void* data = raw.data();
+    if (bytes_per_sample == 1) {
+      for (size_t i = 0; i < widened.size(); ++i) widened[i] = static_cast<uint16_t>(raw[i]);
+      data = widened.data();
+    }
+    const uint32_t allocation = slot / slots_per_allocation;
+    const uint64_t offset = uint64_t{slot % slots_per_allocation} * device_brick_bytes;
+    return cc->WriteBuffer(bricks[allocation], offset, device_brick_bytes, data);
+  }
+};
+
+Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext* context,
+                                                           octree::Octree* octree,
+                                                           const DeviceOctreeOptions& options) {
+  if (context == nullptr || octree == nullptr) {
+    return InvalidArgumentError("DeviceOctree: null context or octree");
+  }
+  if (options.request_capacity == 0) {
+    return InvalidArgumentError("DeviceOctree: request_capacity must be > 0");
+  }
+  const octree::BrickGeometry& geometry = octree->geometry();
+  std::unique_ptr<DeviceOctree> self(new DeviceOctree());
+  self->octree_ = octree;
+  self->impl_ = std::make_unique<Impl>();
+  Impl& m = *self->impl_;
+  m.cc = context;
+  m.tree = octree;
+  m.channels = geometry.channels();
+  m.words = static_cast<size_t>(octree::NodeWords(m.channels));
+  m.bytes_per_sample = geometry.bytes_per_sample();
+  m.device_brick_bytes = geometry.brick_samples() * 2;
+
+  // Brick slots: the option's budget in whole bricks, at least kMinBrickSlots, at most what the
+  // tree could ever hold (and addressable by a uint32 slot word).
+  const uint64_t wanted = options.brick_buffer_bytes / m.device_brick_bytes;
+  const uint64_t most =
+      std::max<uint64_t>(kMinBrickSlots, std::min<uint64_t>(MaxBrickNodes(geometry), kNoNode - 1));
+  const uint64_t slot_count = std::clamp<uint64_t>(wanted, kMinBrickSlots, most);
+  const uint64_t cap = options.max_allocation_bytes != 0 ? options.max_allocation_bytes
+                                                         : context->device().max_alloc_bytes;
+  const uint64_t per_allocation = std::min<uint64_t>(cap / m.device_brick_bytes, slot_count);
+  if (per_allocation == 0) {
+    return ResourceExhaustedError("DeviceOctree: one brick of " +
+                                  std::to_string(m.device_brick_bytes) +
+                                  " bytes exceeds the allocation cap of " + std::to_string(cap));
+  }
+  const uint64_t allocations = (slot_count + per_allocation - 1) / per_allocation;
+  if (allocations > static_cast<uint64_t>(kMaxBrickAllocations)) {
+    return ResourceExhaustedError("DeviceOctree: " + std::to_string(slot_count) +
+                                  " brick slots of " + std::to_string(m.device_brick_bytes) +
+                                  " bytes need " + std::to_string(allocations) +
+                                  " allocations of at most " + std::to_string(cap) +
+                                  " bytes; the limit is " + std::to_string(kMaxBrickAllocations));
+  }
+  self->slot_count_ = static_cast<uint32_t>(slot_count);
+  self->slots_per_allocation_ = static_cast<uint32_t>(per_allocation);
+  self->request_capacity_ = options.request_capacity;
+  m.slots_per_allocation = self->slots_per_allocation_;
+  m.request_capacity = options.request_capacity;
+  for (uint64_t a = 0; a < allocations; ++a) {
+    const uint64_t slots = std::min(per_allocation, slot_count - a * per_allocation);
+    OCTO_ASSIGN_OR_RETURN(ClMem buffer,
+                          context->CreateBuffer(CL_MEM_READ_ONLY, slots * m.device_brick_bytes));
+    m.bricks.push_back(std::move(buffer));
+  }
+  m.slot_node.assign(slot_count, kNoNode);
+  m.slot_key.assign(slot_count, octree::NodeKey{});
+  m.slot_used.assign(slot_count, 0);
+  for (uint64_t s = slot_count; s-- > 0;) m.free_slots.push_back(static_cast<uint32_t>(s));
+  m.raw.resize(geometry.brick_bytes());
+  if (m.bytes_per_sample == 1) m.widened.resize(geometry.brick_samples());
+
+  // Feedback buffers, zeroed (request_flags is created with the node buffer).
+  OCTO_ASSIGN_OR_RETURN(
+      m.request_list,
+      context->CreateBuffer(CL_MEM_READ_WRITE, (size_t{m.request_capacity} + 1) * 4));
+  OCTO_RETURN_IF_ERROR(m.Fill(m.request_list, (size_t{m.request_capacity} + 1) * 4));
+  OCTO_ASSIGN_OR_RETURN(m.slot_used_buffer,
+                        context->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
+  OCTO_RETURN_IF_ERROR(m.Fill(m.slot_used_buffer, slot_count * 4));
+
+  // Drain first so that events of what the walk already sees are not replayed later as news
+  // (replaying them would be harmless but costly); then walk the tree from the root by id.
+  (void)octree->DrainChanges();
+  std::vector<uint32_t> queue = {0};
+  for (size_t i = 0; i < queue.size(); ++i) {
+    std::optional<octree::NodeSnapshot> snap = octree->GetNode(queue[i]);
+    if (!snap.has_value()) continue;  // Deleted while we walk: its event follows.
+    m.EnsureCapacity(snap->id);
+    m.live[snap->id] = 1;
+    m.todo.insert(snap->id);
+    if (snap->has_children()) {
+      for (uint32_t o = 0; o < 8; ++o) queue.push_back(snap->child_group * 8 + o);
+    }
+    m.snapshots.emplace(snap->id, std::move(*snap));
+  }
+  m.EnsureCapacity(0);
+  m.EncodePending();
+  OCTO_RETURN_IF_ERROR(m.Flush(nullptr));
+  return self;
+}
+
+DeviceOctree::~DeviceOctree() = default;
+
+Status DeviceOctree::Sync(SyncStats* stats) {
+  Impl& m = *impl_;
+  const std::vector<octree::NodeChange> changes = octree_->DrainChanges();
+  // Apply liveness in event order (a delete and a re-creation of one id in one window both
+  // count); node contents are read now, at least as new as the events.
+  for (const octree::NodeChange& change : changes) {
+    const uint32_t id = change.node;
+    if (change.kind == octree::NodeChangeKind::kDeleted) {
+      m.NodeGone(id);
+      continue;
+    }
+    std::optional<octree::NodeSnapshot> snap = octree_->GetNode(id);
+    if (!snap.has_value()) {
+      m.NodeGone(id);
+      continue;
+    }
+    m.EnsureCapacity(id);
+    if (change.kind == octree::NodeChangeKind::kUpdated) {
+      // The brick's bytes may have changed: re-upload it first, keep showing the old bytes.
+      if (const auto it = m.slot_of.find(id);
+          it != m.slot_of.end() && snap->has_brick() && m.slot_key[it->second] == snap->key) {
+        m.stale.insert(id);
+      }
+    }
+    m.live[id] = 1;
+    m.todo.insert(id);
+    m.snapshots.insert_or_assign(id, std::move(*snap));
+  }
+  m.EncodePending();
+  uint64_t written = 0;
+  OCTO_RETURN_IF_ERROR(m.Flush(&written));
+  if (stats != nullptr) {
+    stats->changes = changes.size();
+    stats->entries_written = written;
+    stats->stale_bricks = m.stale.size();
+  }
+  return Status::Ok();
+}
+
+Result<uint32_t> DeviceOctree::BeginFrame() {
+  Impl& m = *impl_;
+  if (m.frame == std::numeric_limits<uint32_t>::max()) {
+    // Wrap-around: old stamps would look newer than the restarted ones; clear them all.
+    OCTO_RETURN_IF_ERROR(m.Fill(m.request_flags, m.capacity_nodes() * 4));
+    OCTO_RETURN_IF_ERROR(m.Fill(m.slot_used_buffer, size_t{slot_count_} * 4));
+    std::fill(m.slot_used.begin(), m.slot_used.end(), 0u);
+    m.frame = 0;
+  }
+  ++m.frame;
+  const cl_uint zero = 0;
+  OCTO_RETURN_IF_ERROR(m.cc->WriteBuffer(m.request_list, 0, sizeof(zero), &zero));
+  return m.frame;
+}
+
+Result<std::vector<uint32_t>> DeviceOctree::ReadFeedback() {
+  Impl& m = *impl_;
+  cl_uint count = 0;
+  OCTO_RETURN_IF_ERROR(m.cc->ReadBuffer(m.request_list, 0, sizeof(count), &count));
+  std::vector<uint32_t> ids(std::min<uint32_t>(count, m.request_capacity));
+  if (!ids.empty()) {
+    OCTO_RETURN_IF_ERROR(m.cc->ReadBuffer(m.request_list, 4, ids.size() * 4, ids.data()));
+  }
+  std::vector<uint32_t> used(slot_count_);
+  OCTO_RETURN_IF_ERROR(m.cc->ReadBuffer(m.slot_used_buffer, 0, used.size() * 4, used.data()));
+  // The host stamp of a fresh upload (its frame) wins over the previous occupant's stamp.
+  for (size_t s = 0; s < used.size(); ++s) m.slot_used[s] = std::max(m.slot_used[s], used[s]);
+  return ids;
+}
+
+Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBudget& budget,
+                            UploadStats* stats) {
+  Impl& m = *impl_;
+  const auto start = std::chrono::steady_clock::now();
+  const auto elapsed_ms = [&start] {
+    return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+        .count();
+  };
+  const int root_level = geometry().root_level();
+  UploadStats s;
+
+  // An id can be uploaded when it is live in the mirror with has_brick, owns a brick in the
+  // tree now and is not resident.
+  struct Item {
+    uint32_t id;
+    int level;
+    octree::NodeKey key;
+    bool stale;
+  };
+  const auto uploadable = [&m](const octree::NodeSnapshot& snap) {
+    return snap.id < m.capacity_nodes() && m.live[snap.id] != 0 && snap.has_brick() &&
+           octree::Word0HasBrick(m.Entry(snap.id)[0]) && m.slot_of.count(snap.id) == 0;
+  };
+  std::vector<Item> items;
+  std::unordered_set<uint32_t> added;
+  std::unordered_set<uint32_t> walked;
+  for (uint32_t id : requested) {
+    if (walked.count(id) != 0 || added.count(id) != 0) continue;
+    std::optional<octree::NodeSnapshot> snap = octree_->GetNode(id);
+    if (!snap.has_value() || !uploadable(*snap)) continue;
+    added.insert(id);
+    items.push_back(Item{id, snap->key.level, snap->key, false});
+    walked.insert(id);
+    // The chain: ancestors owning a brick that is not resident (coarse data shows first).
+    octree::NodeKey key = snap->key;
+    while (key.level < root_level) {
+      key = octree::ParentKey(key);
+      std::optional<octree::NodeSnapshot> parent = octree_->GetNode(key);
+      if (!parent.has_value() || !walked.insert(parent->id).second) break;
+      if (uploadable(*parent) && added.insert(parent->id).second) {
+        items.push_back(Item{parent->id, parent->key.level, parent->key, false});
+      }
+    }
+  }
+  s.requested = items.size();
+  // Coarse first (higher level), then by id.
+  std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) {
+    return std::tie(b.level, a.id) < std::tie(a.level, b.id);
+  });
+  // Stale resident bricks go first.
+  std::vector<Item> order;
+  order.reserve(m.stale.size() + items.size());
+  for (uint32_t id : m.stale) {
+    const uint32_t slot = m.slot_of.at(id);
+    order.push_back(Item{id, m.slot_key[slot].level, m.slot_key[slot], true});
+  }
+  order.insert(order.end(), items.begin(), items.end());
+
+  // Eviction candidates, computed once: occupied slots older than protect_frame, least recently
+  // used first, at equal stamps finer levels first.
+  std::vector<uint32_t> victims;
+  for (uint32_t slot = 0; slot < slot_count_; ++slot) {
+    if (m.slot_node[slot] != kNoNode && m.slot_used[slot] < budget.protect_frame) {
+      victims.push_back(slot);
+    }
+  }
+  std::sort(victims.begin(), victims.end(), [&m](uint32_t a, uint32_t b) {
+    return std::tie(m.slot_used[a], m.slot_key[a].level, a) <
+           std::tie(m.slot_used[b], m.slot_key[b].level, b);
+  });
+  size_t next_victim = 0;
+  std::vector<uint8_t> filled_now(slot_count_, 0);
+
+  Status status;
+  uint64_t done = 0;
+  for (size_t i = 0; i < order.size(); ++i) {
+    const bool over_count = budget.max_bricks != 0 && done >= budget.max_bricks;
+    if (done >= 1 && (over_count || elapsed_ms() >= budget.max_ms)) {
+      s.deferred += order.size() - i;
+      break;
+    }
+    const Item& item = order[i];
+    const auto resident = m.slot_of.find(item.id);
+    if (item.stale && resident == m.slot_of.end()) continue;
+    if (!item.stale && resident != m.slot_of.end()) continue;
+    // Read first: a node that lost its brick meanwhile must not cost an eviction.
+    const Status read = octree_->ReadBrick(item.id, m.raw);
+    if (read.code() == StatusCode::kNotFound) {
+      // Gone or brickless: its change event follows; drop the stale copy now.
+      if (item.stale) m.ReleaseSlot(resident->second, true);
+      continue;
+    }
+    if (!read.ok()) {
+      status = read;
+      break;
+    }
+    uint32_t slot;
+    if (item.stale) {
+      slot = resident->second;
+    } else if (!m.free_slots.empty()) {
+      slot = m.free_slots.back();
+      m.free_slots.pop_back();
+    } else {
+      while (next_victim < victims.size() && (filled_now[victims[next_victim]] != 0 ||
+                                              m.slot_node[victims[next_victim]] == kNoNode)) {
+        ++next_victim;
+      }
+      if (next_victim == victims.size()) {
+        // Every slot is protected or was filled by this call: the rest waits.
+        s.deferred += order.size() - i;
+        break;
+      }
+      slot = victims[next_victim++];
+      m.ReleaseSlot(slot, false);
+      ++s.evicted;
+    }
+    if (Status write = m.WriteBrick(slot); !write.ok()) {
+      if (!item.stale) m.free_slots.push_back(slot);
+      status = write;
+      break;
+    }
+    filled_now[slot] = 1;
+    ++done;
+    ++s.uploaded;
+    s.bytes += m.device_brick_bytes;
+    if (item.stale) {
+      ++s.reuploaded;
+      m.stale.erase(item.id);
+      continue;
+    }
+    m.slot_node[slot] = item.id;
+    m.slot_key[slot] = item.key;
+    m.slot_used[slot] = m.frame;
+    m.slot_of[item.id] = slot;
+    m.WriteResidency(item.id);
+  }
+  // The residency bits reach the device even when an upload failed midway.
+  const Status flushed = m.Flush(nullptr);
+  total_uploaded_ += s.uploaded;
+  s.ms = elapsed_ms();
+  if (stats != nullptr) *stats = s;
+  OCTO_RETURN_IF_ERROR(status);
+  return flushed;
+}
+
+Status DeviceOctree::UploadAll(std::span<const uint32_t> nodes, uint32_t protect_frame,
+                               UploadStats* stats) {
+  UploadBudget budget;
+  budget.max_ms = std::numeric_limits<double>::infinity();
+  budget.max_bricks = 0;
+  budget.protect_frame = protect_frame;
+  return Upload(nodes, budget, stats);
+}
+
+cl_mem DeviceOctree::node_buffer() const { return impl_->node_buffer.get(); }
+
+std::array<cl_mem, kMaxBrickAllocations> DeviceOctree::brick_buffers() const {
+  std::array<cl_mem, kMaxBrickAllocations> out;
+  for (int a = 0; a < kMaxBrickAllocations; ++a) {
+    out[a] = impl_->bricks[static_cast<size_t>(a) < impl_->bricks.size() ? a : 0].get();
+  }
+  return out;
+}
+
+cl_mem DeviceOctree::request_flags() const { return impl_->request_flags.get(); }
+cl_mem DeviceOctree::request_list() const { return impl_->request_list.get(); }
+cl_mem DeviceOctree::slot_used() const { return impl_->slot_used_buffer.get(); }
+
+int DeviceOctree::allocation_count() const { return static_cast<int>(impl_->bricks.size()); }
+uint64_t DeviceOctree::resident_bricks() const { return impl_->slot_of.size(); }
+
+std::optional<uint32_t> DeviceOctree::SlotOf(uint32_t id) const {
+  const auto it = impl_->slot_of.find(id);
+  if (it == impl_->slot_of.end()) return std::nullopt;
+  return it->second;
+}
+
+std::span<const uint32_t> DeviceOctree::node_mirror() const { return impl_->mirror; }
+
+uint64_t DeviceOctree::node_capacity() const { return impl_->capacity_nodes(); }
+uint32_t DeviceOctree::frame() const { return impl_->frame; }
+uint64_t DeviceOctree::device_brick_bytes() const { return impl_->device_brick_bytes; }
+std::span<const uint32_t> DeviceOctree::slot_stamps() const { return impl_->slot_used; }
+
+}  // namespace octoscope::render

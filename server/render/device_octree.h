@@ -1,0 +1,174 @@
+// DeviceOctree: the octree mirrored into one OpenCL device's memory (paper, "GPU Data Structure",
+// "Brick Upload from RAM to GPU", "Incremental Octree Updates on the GPU") and the brick upload
+// manager that decides which bricks are resident.
+//
+// Device data (layouts: kernels/node_format.h, docs/octree_format.md "Device node buffer"):
+//  * NODE BUFFER: one entry per node id (NodeWords(C) uint32 words), kept as a host mirror plus a
+//    device buffer. Sync() drains the octree's change log and rewrites only the entries that
+//    changed (created, updated or deleted ids, and the residency bits of nodes whose slot
+//    changed), as a few coalesced clEnqueueWriteBuffer ranges. The buffer grows (reallocated,
+//    contents copied) when the octree uses a higher child group.
+//    Invariant: an entry's child group is non-zero only when all 8 children's entries are
+//    already written (a parent whose new group appeared after the drain is encoded without
+//    children until the group's creation events are drained), so a kernel never follows a
+//    group into garbage while construction is inserting.
+//  * BRICK BUFFER: `slot_count` slots of one stored brick each, ALWAYS as uint16 samples
+//    (device_brick_bytes() = geometry().brick_samples() * 2; uint8 trees are widened on upload),
+//    split over at most kMaxBrickAllocations device allocations of `slots_per_allocation` slots
+//    each when one allocation would exceed CL_DEVICE_MAX_MEM_ALLOC_SIZE (or the option's cap). Slot
+//    s lives in allocation s / slots_per_allocation at brick offset s % slots_per_allocation.
+//  * FEEDBACK, written by the kernels (kernels/raycast.cl):
+//      request_flags: one uint per node id; a kernel that wants node n does
+//        `if (atomic_xchg(&request_flags[n], frame) != frame)` append n to request_list;
+//      request_list: uint [0] = count (may exceed capacity: later appends are dropped),
+//        [1 .. capacity] node ids;
+//      slot_used: one uint per slot, the frame stamp of the last frame that sampled it (plain
+//        stores; races write the same value).
+//    BeginFrame() returns a new frame stamp and clears the request count; ReadFeedback() reads
+//    the request list and the slot stamps back (only the count and the used prefix are read).
+//
+// Upload manager (Upload): given requested node ids, it adds each one's ancestors that own a
+// brick but are not resident (the "chain"), orders the set COARSE FIRST (higher level first,
+// then by id), and uploads as many as the budget allows (time, measured around the blocking
+// writes, and an optional brick count). A free slot is used first; else the least recently used
+// slot (oldest slot_used stamp, coarse levels evicted last at equal stamps) whose stamp is older
+// than `protect_frame` — bricks the in-flight frame sampled are never evicted, and a brick
+// uploaded in this call is never evicted by the same call. Evicting clears the node's in_buffer
+// bit (its entry is rewritten). Resident bricks whose bytes changed (kUpdated of a node that
+// still owns a brick) stay resident showing their previous bytes and are re-uploaded FIRST
+// within the budget (no flicker: nothing else changes); a node that lost its brick frees its slot.
+//
+// Thread safety: NOT thread-safe. One render thread owns a DeviceOctree (and the device queue it
+// enqueues on). The octree may be inserting concurrently on other threads: Sync and Upload read
+// it only through its thread-safe GetNode / ReadBrick / DrainChanges.
+#ifndef OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
+#define OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
+
+#include <CL/cl.h>
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <span>
+#include <vector>
+
+#include "octree/octree.h"
+#include "render/cl_handles.h"
+#include "render/device.h"
+#include "util/result.h"
+#include "util/status.h"
+
+namespace octoscope::render {
+
+inline constexpr int kMaxBrickAllocations = 4;
+
+struct DeviceOctreeOptions {
+  // Total brick buffer size, rounded down to whole bricks; at least kMinBrickSlots slots and at
+  // most the node count the geometry could ever need. Default 512 MiB.
+  uint64_t brick_buffer_bytes = uint64_t{512} << 20;
+  // Cap for one allocation; 0 = the device's CL_DEVICE_MAX_MEM_ALLOC_SIZE. Tests set it small to
+  // exercise the split. kResourceExhausted when kMaxBrickAllocations allocations are not enough.
+  uint64_t max_allocation_bytes = 0;
+  // Capacity of the request list (ids per frame beyond it are dropped; the next frame asks again).
+  uint32_t request_capacity = 65536;
+};
+inline constexpr uint32_t kMinBrickSlots = 8;
+
+// What one frame asks of the upload manager.
+struct UploadBudget {
+  double max_ms = 150;         // Stop starting uploads once this much time was spent (>= 1 brick).
+  uint64_t max_bricks = 0;     // 0 = no count limit.
+  uint32_t protect_frame = 0;  // Slots with slot_used >= this stamp are never evicted.
+};
+
+struct UploadStats {
+  uint64_t requested = 0;   // Distinct nodes asked for (after adding ancestors).
+  uint64_t uploaded = 0;    // Bricks written to the device (re-uploads included).
+  uint64_t reuploaded = 0;  // Of which: resident bricks refreshed after construction changed them.
+  uint64_t evicted = 0;     // Resident bricks dropped to make room.
+  uint64_t deferred = 0;    // Requests left for a later frame (budget or no evictable slot).
+  uint64_t bytes = 0;       // Brick bytes written.
+  double ms = 0;            // Time spent uploading.
+};
+
+struct SyncStats {
+  uint64_t changes = 0;          // Change-log events applied.
+  uint64_t entries_written = 0;  // Node entries written to the device.
+  uint64_t stale_bricks = 0;     // Resident bricks now waiting for a re-upload.
+};
+
+class DeviceOctree {
+ public:
+  // `context` and `octree` must outlive the DeviceOctree. Writes every current node of the tree
+  // (the tree may be empty or half built) and uploads nothing else: no brick is resident.
+  static Result<std::unique_ptr<DeviceOctree>> Create(const ComputeContext* context,
+                                                      octree::Octree* octree,
+                                                      const DeviceOctreeOptions& options = {});
+  ~DeviceOctree();
+  DeviceOctree(const DeviceOctree&) = delete;
+  DeviceOctree& operator=(const DeviceOctree&) = delete;
+
+  // Applies the octree's pending changes to the node buffer (see the file comment).
+  Status Sync(SyncStats* stats = nullptr);
+
+  // A new frame stamp (1, 2, ...; never 0) and an empty request list.
+  Result<uint32_t> BeginFrame();
+  // Reads the frame's request list (node ids, deduplicated by the kernel's flags, at most
+  // request_capacity) and the slot stamps (for LRU). REQUIRES: the frame's kernels finished.
+  Result<std::vector<uint32_t>> ReadFeedback();
+
+  // Uploads requested bricks (plus stale resident ones) within `budget` (see the file comment).
+  Status Upload(std::span<const uint32_t> requested, const UploadBudget& budget,
+                UploadStats* stats = nullptr);
+  // Makes every brick of `nodes` (and their ancestors) resident regardless of time, as far as
+  // slots allow: for tests and for warming a view. Same eviction rules as Upload.
+  Status UploadAll(std::span<const uint32_t> nodes, uint32_t protect_frame,
+                   UploadStats* stats = nullptr);
+
+  // --- For kernels: bind these as arguments (node buffer and request flags may be reallocated
+  // by Sync when the tree outgrows the capacity: re-bind after every Sync). ---
+  cl_mem node_buffer() const;
+  // kMaxBrickAllocations handles; unused ones repeat allocation 0 (always a valid buffer).
+  std::array<cl_mem, kMaxBrickAllocations> brick_buffers() const;
+  uint32_t slots_per_allocation() const { return slots_per_allocation_; }
+  cl_mem request_flags() const;
+  cl_mem request_list() const;
+  uint32_t request_capacity() const { return request_capacity_; }
+  cl_mem slot_used() const;
+
+  // --- Introspection (tests, stats). ---
+  const octree::Octree& octree() const { return *octree_; }
+  const octree::BrickGeometry& geometry() const { return octree_->geometry(); }
+  uint32_t slot_count() const { return slot_count_; }
+  int allocation_count() const;
+  uint64_t resident_bricks() const;
+  // The slot of node `id` when its brick is resident.
+  std::optional<uint32_t> SlotOf(uint32_t id) const;
+  // The host mirror of the node buffer (what the device holds after the last Sync/Upload).
+  std::span<const uint32_t> node_mirror() const;
+  uint64_t total_uploaded() const { return total_uploaded_; }
+  // Entries of the node buffer (and uints of request_flags): node ids below it are addressable.
+  uint64_t node_capacity() const;
+  // The stamp BeginFrame last returned (0 before the first frame).
+  uint32_t frame() const;
+  // Bytes of one slot on the device: brick_samples() * 2 (uint16 samples whatever the tree's).
+  uint64_t device_brick_bytes() const;
+  // Host copy of the slot stamps (slot_used) as of the last ReadFeedback / Upload.
+  std::span<const uint32_t> slot_stamps() const;
+
+ private:
+  struct Impl;
+  DeviceOctree() = default;
+
+  std::unique_ptr<Impl> impl_;
+  octree::Octree* octree_ = nullptr;
+  uint32_t slot_count_ = 0;
+  uint32_t slots_per_allocation_ = 0;
+  uint32_t request_capacity_ = 0;
+  uint64_t total_uploaded_ = 0;
+};
+
+}  // namespace octoscope::render
+
+#endif  // OCTOSCOPE_RENDER_DEVICE_OCTREE_H_

@@ -1,0 +1,716 @@
+// DeviceOctree (server/render/device_octree.h) against independent CPU data: the device node
+// buffer is read back and compared with an encoding made here by walking the octree by node KEY
+// (Octree::GetNode(NodeKey), octree::EncodeNode); device bricks are read back (directly or
+// through a test kernel that goes through OctoBrickAllocation) and compared with
+// Octree::ReadBrick, widened to uint16 for uint8 trees. The device is never its own oracle.
+#include "render/device_octree.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <set>
+#include <thread>
+#include <tuple>
+#include <vector>
+
+#include "cl_test_env.h"
+#include "octree/node_encoding.h"
+#include "paging/memory_page_store.h"
+#include "paging/page_cache.h"
+#include "render/cl_handles.h"
+#include "render_fixture.h"
+
+namespace octoscope::render {
+namespace {
+
+using ::octoscope::render::testing::kTestBuildOptions;
+using ::octoscope::render::testing::MakeRenderScene;
+using ::octoscope::render::testing::RenderScene;
+using ::octoscope::render::testing::SceneSpec;
+using ::octoscope::render::testing::SharedClTestEnv;
+using octree::NodeKey;
+using octree::NodeSnapshot;
+using octree::Octree;
+
+constexpr double kNoTimeLimit = std::numeric_limits<double>::infinity();
+
+uint32_t Hash(int64_t x, int64_t y, int64_t z, int c) {
+  uint32_t h = static_cast<uint32_t>(x * 73856093 ^ y * 19349663 ^ z * 83492791 ^ c * 2654435761u);
+  h ^= h >> 13;
+  h *= 0x5bd1e995u;
+  h ^= h >> 15;
+  return h;
+}
+
+// Noise everywhere (no brick is ever homogeneous, so no node is ever pruned or deleted), except
+// a constant slab at z >= 40 whose nodes are homogeneous.
+SceneSpec NoiseSpec(volume::DataType type, int channels) {
+  SceneSpec spec;
+  spec.size = {48, 40, 48};
+  spec.brick = {8, 8, 8};
+  spec.channels = channels;
+  spec.stored_type = type;
+  const uint32_t mask = type == volume::DataType::kUint8 ? 0xffu : 0xffffu;
+  spec.value = [mask](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    if (z >= 40) return static_cast<uint16_t>(100 + c);
+    return static_cast<uint16_t>(Hash(x, y, z, c) & mask);
+  };
+  return spec;
+}
+
+std::unique_ptr<RenderScene> Scene(const SceneSpec& spec, bool insert = true) {
+  auto scene = MakeRenderScene(spec, insert);
+  EXPECT_TRUE(scene.ok()) << scene.status().ToString();
+  return scene.ok() ? std::move(*scene) : nullptr;
+}
+
+// An empty scene like MakeRenderScene(spec, false), but whose octree has a non-zero background
+// in every channel: then every entry ever written for a node has a non-zero average word, so an
+// all-zero entry is one that was never written.
+std::unique_ptr<RenderScene> EmptySceneWithBackground(const SceneSpec& spec) {
+  auto scene = std::make_unique<RenderScene>();
+  scene->spec = spec;
+  octree::BrickGeometry::Params params;
+  params.volume_size = {spec.size[0], spec.size[1], spec.size[2]};
+  params.brick_size = spec.brick;
+  params.channels = spec.channels;
+  params.bytes_per_sample = spec.stored_type == volume::DataType::kUint8 ? 1 : 2;
+  auto geometry = octree::BrickGeometry::Create(params);
+  EXPECT_TRUE(geometry.ok());
+  if (!geometry.ok()) return nullptr;
+  octree::OctreeOptions options;
+  options.brick_size = spec.brick;
+  options.background.assign(static_cast<size_t>(spec.channels), 7);
+  scene->store = std::make_unique<paging::MemoryPageStore>(geometry->brick_bytes() * 8);
+  scene->cache = std::make_unique<paging::PageCache>(scene->store.get(), uint64_t{1} << 30);
+  auto tree = Octree::Create(*geometry, options, scene->cache.get());
+  EXPECT_TRUE(tree.ok()) << tree.status().ToString();
+  if (!tree.ok()) return nullptr;
+  scene->tree = std::move(*tree);
+  const auto& n = spec.size;
+  scene->voxels.assign(static_cast<size_t>(spec.channels),
+                       std::vector<uint16_t>(static_cast<size_t>(n[0] * n[1] * n[2])));
+  for (int c = 0; c < spec.channels; ++c) {
+    size_t i = 0;
+    for (int64_t z = 0; z < n[2]; ++z)
+      for (int64_t y = 0; y < n[1]; ++y)
+        for (int64_t x = 0; x < n[0]; ++x) scene->voxels[c][i++] = spec.value(c, x, y, z);
+  }
+  return scene;
+}
+
+const ComputeContext& Cc() { return *SharedClTestEnv().context; }
+
+std::unique_ptr<DeviceOctree> MakeDevice(Octree* tree, const DeviceOctreeOptions& options = {}) {
+  auto dev = DeviceOctree::Create(&Cc(), tree, options);
+  EXPECT_TRUE(dev.ok()) << dev.status().ToString();
+  return dev.ok() ? std::move(*dev) : nullptr;
+}
+
+// Every live node reachable from the root, found by KEY (not by child-group ids).
+std::vector<NodeSnapshot> NodesByKey(const Octree& tree) {
+  std::vector<NodeSnapshot> out;
+  std::vector<NodeKey> keys = {tree.geometry().RootKey()};
+  while (!keys.empty()) {
+    const NodeKey key = keys.back();
+    keys.pop_back();
+    std::optional<NodeSnapshot> node = tree.GetNode(key);
+    if (!node.has_value()) continue;
+    if (node->has_children()) {
+      for (int o = 0; o < 8; ++o) keys.push_back(octree::ChildKey(key, o));
+    }
+    out.push_back(std::move(*node));
+  }
+  return out;
+}
+
+// The node buffer this test expects: every node encoded at its id; in_buffer and slot from
+// `dev`'s SlotOf when given, else not resident.
+// With `strict` false a node beyond `capacity` (a tree still growing) gives an empty result
+// instead of a test failure.
+std::vector<uint32_t> ExpectedNodes(const Octree& tree, uint64_t capacity,
+                                    const DeviceOctree* dev = nullptr, bool strict = true) {
+  const int channels = tree.geometry().channels();
+  std::vector<uint32_t> out(capacity * static_cast<uint64_t>(octree::NodeWords(channels)), 0);
+  for (const NodeSnapshot& n : NodesByKey(tree)) {
+    octree::DeviceNode d;
+    d.has_brick = n.has_brick();
+    d.child_group = n.child_group;
+    if (dev != nullptr && dev->SlotOf(n.id).has_value()) {
+      d.in_buffer = true;
+      d.brick_slot = *dev->SlotOf(n.id);
+    }
+    for (const auto& c : n.channels) {
+      d.averages.push_back(octree::QuantizeAverage(c.avg, tree.geometry().bytes_per_sample()));
+    }
+    const Status written = octree::WriteNode(out, n.id, d);
+    if (!strict && !written.ok()) return {};
+    EXPECT_TRUE(written.ok()) << "node " << n.id << " capacity " << capacity;
+  }
+  return out;
+}
+
+std::vector<uint32_t> DeviceNodes(const DeviceOctree& dev) {
+  const size_t words =
+      dev.node_capacity() * static_cast<size_t>(octree::NodeWords(dev.geometry().channels()));
+  std::vector<uint32_t> out(words);
+  const ClMem buffer = ClMem::Retain(dev.node_buffer());
+  EXPECT_TRUE(Cc().ReadBuffer(buffer, 0, words * 4, out.data()).ok());
+  return out;
+}
+
+// The first differing node id, for messages (-1 when equal).
+int64_t FirstDifference(const std::vector<uint32_t>& a, const std::vector<uint32_t>& b,
+                        int channels) {
+  const size_t words = static_cast<size_t>(octree::NodeWords(channels));
+  for (size_t i = 0; i < std::min(a.size(), b.size()); ++i) {
+    if (a[i] != b[i]) return static_cast<int64_t>(i / words);
+  }
+  return a.size() == b.size() ? -1 : static_cast<int64_t>(std::min(a.size(), b.size()) / words);
+}
+
+// Node `id`'s brick as the device must hold it: ReadBrick, widened to uint16 for uint8 trees.
+std::vector<uint16_t> HostBrick(const Octree& tree, uint32_t id) {
+  const octree::BrickGeometry& g = tree.geometry();
+  std::vector<std::byte> raw(g.brick_bytes());
+  EXPECT_TRUE(tree.ReadBrick(id, raw).ok()) << id;
+  std::vector<uint16_t> out(g.brick_samples());
+  if (g.bytes_per_sample() == 1) {
+    for (size_t i = 0; i < out.size(); ++i) out[i] = static_cast<uint16_t>(raw[i]);
+  } else {
+    std::memcpy(out.data(), raw.data(), raw.size());
+  }
+  return out;
+}
+
+// The bytes of `slot` read straight from its allocation.
+std::vector<uint16_t> DeviceBrick(const DeviceOctree& dev, uint32_t slot) {
+  std::vector<uint16_t> out(dev.geometry().brick_samples());
+  const uint32_t spa = dev.slots_per_allocation();
+  const ClMem buffer = ClMem::Retain(dev.brick_buffers()[slot / spa]);
+  EXPECT_TRUE(Cc().ReadBuffer(buffer, (slot % spa) * dev.device_brick_bytes(),
+                              dev.device_brick_bytes(), out.data())
+                  .ok());
+  return out;
+}
+
+std::vector<NodeSnapshot> Bricked(const Octree& tree, int level = -1) {
+  std::vector<NodeSnapshot> out;
+  for (NodeSnapshot& n : NodesByKey(tree)) {
+    if (n.has_brick() && (level < 0 || n.key.level == level)) out.push_back(std::move(n));
+  }
+  std::sort(out.begin(), out.end(),
+            [](const NodeSnapshot& a, const NodeSnapshot& b) { return a.id < b.id; });
+  return out;
+}
+
+std::vector<uint32_t> Ids(const std::vector<NodeSnapshot>& nodes) {
+  std::vector<uint32_t> ids;
+  for (const NodeSnapshot& n : nodes) ids.push_back(n.id);
+  return ids;
+}
+
+// ---------------------------------------------------------------------------------------------
+
+class DeviceOctreeTypedTest : public ::testing::TestWithParam<volume::DataType> {};
+
+INSTANTIATE_TEST_SUITE_P(StoredTypes, DeviceOctreeTypedTest,
+                         ::testing::Values(volume::DataType::kUint16, volume::DataType::kUint8),
+                         [](const auto& info) {
+                           return info.param == volume::DataType::kUint8 ? "Uint8" : "Uint16";
+                         });
+
+TEST_P(DeviceOctreeTypedTest, CreateWritesEveryNodeLikeAnIndependentEncoding) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(GetParam(), 3));
+  ASSERT_NE(scene, nullptr);
+  auto dev = MakeDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  SyncStats stats;
+  ASSERT_TRUE(dev->Sync(&stats).ok());
+  EXPECT_EQ(stats.changes, 0u);  // Create drained the construction's events.
+  const std::vector<uint32_t> device = DeviceNodes(*dev);
+  const std::vector<uint32_t> expected = ExpectedNodes(*scene->tree, dev->node_capacity());
+  EXPECT_EQ(FirstDifference(device, expected, 3), -1);
+  EXPECT_TRUE(std::equal(device.begin(), device.end(), dev->node_mirror().begin(),
+                         dev->node_mirror().end()));
+  const size_t words = static_cast<size_t>(octree::NodeWords(3));
+  for (size_t i = 0; i < device.size(); i += words) {
+    ASSERT_FALSE(octree::Word0InBuffer(device[i])) << "node " << i / words;
+  }
+  EXPECT_EQ(dev->resident_bricks(), 0u);
+  EXPECT_EQ(dev->device_brick_bytes(), dev->geometry().brick_samples() * 2);
+}
+
+TEST_P(DeviceOctreeTypedTest, UploadsCoarseFirstAndBricksMatchReadBrick) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(GetParam(), 2));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  auto dev = MakeDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  // The independent chain: every bricked leaf plus every bricked ancestor, coarse first.
+  const std::vector<NodeSnapshot> all = Bricked(tree);
+  const std::vector<uint32_t> leaves = Ids(Bricked(tree, 0));
+  ASSERT_GT(leaves.size(), 20u);
+  std::vector<std::pair<int, uint32_t>> chain;
+  for (const NodeSnapshot& n : all) chain.emplace_back(-n.key.level, n.id);
+  std::sort(chain.begin(), chain.end());
+  ASSERT_GE(dev->slot_count(), chain.size());
+
+  const uint64_t n = 12;
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.max_bricks = n;
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload(leaves, budget, &stats).ok());
+  EXPECT_EQ(stats.requested, chain.size());
+  EXPECT_EQ(stats.uploaded, n);
+  EXPECT_EQ(stats.deferred, chain.size() - n);
+  EXPECT_EQ(stats.evicted, 0u);
+  EXPECT_EQ(stats.bytes, n * dev->device_brick_bytes());
+  for (size_t i = 0; i < chain.size(); ++i) {
+    EXPECT_EQ(dev->SlotOf(chain[i].second).has_value(), i < n) << "chain position " << i;
+  }
+
+  ASSERT_TRUE(dev->UploadAll(leaves, 0, &stats).ok());
+  EXPECT_EQ(stats.uploaded, chain.size() - n);
+  EXPECT_EQ(dev->resident_bricks(), chain.size());
+  EXPECT_EQ(dev->total_uploaded(), chain.size());
+  std::set<uint32_t> slots;
+  for (const NodeSnapshot& node : all) {
+    const std::optional<uint32_t> slot = dev->SlotOf(node.id);
+    ASSERT_TRUE(slot.has_value()) << node.id;
+    EXPECT_TRUE(slots.insert(*slot).second) << "slot " << *slot << " used twice";
+    ASSERT_EQ(DeviceBrick(*dev, *slot), HostBrick(tree, node.id)) << "node " << node.id;
+  }
+  // in_buffer and slot words as SlotOf says, everything else as the independent encoding.
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+      -1);
+}
+
+TEST(DeviceOctreeTest, IncrementalSyncWritesOnlyChangedEntries) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  auto dev = MakeDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  const size_t node_count = NodesByKey(*scene->tree).size();
+  ASSERT_GT(node_count, 200u);
+  // Overwrite a 3^3 block inside one leaf: that leaf and its ancestors change.
+  const octree::Box box{{9, 9, 9}, {12, 12, 12}};
+  std::vector<uint16_t> data(27, 12345);
+  ASSERT_TRUE(scene->tree->Insert(0, box, std::as_bytes(std::span(data))).ok());
+  SyncStats stats;
+  ASSERT_TRUE(dev->Sync(&stats).ok());
+  EXPECT_GT(stats.changes, 0u);
+  EXPECT_GT(stats.entries_written, 0u);
+  EXPECT_LT(stats.entries_written * 10, node_count);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(*scene->tree, dev->node_capacity()), 1), -1);
+  // A second Sync has nothing to do.
+  ASSERT_TRUE(dev->Sync(&stats).ok());
+  EXPECT_EQ(stats.changes, 0u);
+  EXPECT_EQ(stats.entries_written, 0u);
+}
+
+TEST(DeviceOctreeTest, SyncDuringConstructionNeverPointsAtUnwrittenChildren) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 2);
+  auto scene = EmptySceneWithBackground(spec);
+  ASSERT_NE(scene, nullptr);
+  auto dev = MakeDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  std::atomic<bool> done{false};
+  Status insert_status;
+  std::thread inserter([&] {
+    for (int64_t z = 0; z < spec.size[2] && insert_status.ok(); ++z) {
+      insert_status = scene->InsertPlanes(z, z + 1);
+    }
+    done.store(true);
+  });
+  const size_t words = static_cast<size_t>(octree::NodeWords(2));
+  int syncs = 0;
+  int partial = 0;  // Syncs whose buffer differed from the tree a moment later (mid-insert).
+  uint64_t checked_groups = 0;
+  for (bool last = false; !last;) {
+    last = done.load();  // One more Sync after the inserter finished.
+    const Status sync = dev->Sync();
+    ASSERT_TRUE(sync.ok()) << sync.ToString();
+    ++syncs;
+    // Follow the DEVICE buffer's child groups from the root: every child entry it reaches must
+    // be a live node of the tree (nothing is ever deleted in this volume), encoded as that node.
+    const std::vector<uint32_t> device = DeviceNodes(*dev);
+    if (!last && device != ExpectedNodes(*scene->tree, dev->node_capacity(), nullptr, false)) {
+      ++partial;
+    }
+    std::vector<uint32_t> stack = {0};
+    while (!stack.empty()) {
+      const uint32_t id = stack.back();
+      stack.pop_back();
+      const uint32_t group = octree::Word0ChildGroup(device[id * words]);
+      if (group == 0) continue;
+      ++checked_groups;
+      for (uint32_t o = 0; o < 8; ++o) {
+        const uint32_t child = group * 8 + o;
+        ASSERT_LT(uint64_t{child}, dev->node_capacity());
+        const std::optional<NodeSnapshot> node = scene->tree->GetNode(child);
+        ASSERT_TRUE(node.has_value()) << "node " << id << " points at dead child " << child;
+        const NodeSnapshot parent = *scene->tree->GetNode(id);
+        ASSERT_EQ(parent.child_group, group);
+        // The child's entry was written (the background makes every written average word
+        // non-zero) and claims no children the node does not have.
+        ASSERT_NE(device[child * words + 2], 0u)
+            << "node " << id << " points at unwritten " << child;
+        const uint32_t child_group = octree::Word0ChildGroup(device[child * words]);
+        ASSERT_TRUE(child_group == 0 || child_group == node->child_group) << child;
+        stack.push_back(child);
+      }
+    }
+  }
+  inserter.join();
+  ASSERT_TRUE(insert_status.ok()) << insert_status.ToString();
+  EXPECT_GT(syncs, 1);
+  EXPECT_GT(checked_groups, 0u);
+  std::printf("[          ] %d syncs while inserting, %d saw a partial tree\n", syncs, partial);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(*scene->tree, dev->node_capacity()), 2), -1);
+}
+
+TEST(DeviceOctreeTest, SplitBrickBufferHoldsEveryBrickInItsAllocation) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint8, 2));
+  ASSERT_NE(scene, nullptr);
+  const uint64_t brick = scene->tree->geometry().brick_samples() * 2;
+  DeviceOctreeOptions options;
+  options.max_allocation_bytes = 3 * brick + brick / 2;  // 3 whole slots per allocation.
+  options.brick_buffer_bytes = 10 * brick;
+  auto dev = MakeDevice(scene->tree.get(), options);
+  ASSERT_NE(dev, nullptr);
+  EXPECT_EQ(dev->slot_count(), 10u);
+  EXPECT_EQ(dev->slots_per_allocation(), 3u);
+  EXPECT_EQ(dev->allocation_count(), 4);
+  const auto buffers = dev->brick_buffers();
+  EXPECT_EQ(std::set<cl_mem>(buffers.begin(), buffers.end()).size(), 4u);
+
+  // Ten bricked nodes (level 1 and up: few enough ancestors) fill all slots.
+  std::vector<uint32_t> ids = Ids(Bricked(*scene->tree));
+  ASSERT_TRUE(dev->UploadAll(ids, 0).ok());
+  ASSERT_EQ(dev->resident_bricks(), 10u);
+
+  const testing::ClTestEnv& env = SharedClTestEnv();
+  auto kernel = env.programs->CreateKernel("device_octree_test.cl", "CopyBrick", kTestBuildOptions);
+  ASSERT_TRUE(kernel.ok()) << kernel.status().ToString();
+  const cl_ulong samples = scene->tree->geometry().brick_samples();
+  auto out = Cc().CreateBuffer(CL_MEM_WRITE_ONLY, samples * 2);
+  ASSERT_TRUE(out.ok());
+  std::set<uint32_t> slots;
+  for (uint32_t id : ids) {
+    const std::optional<uint32_t> slot = dev->SlotOf(id);
+    if (!slot.has_value()) continue;
+    slots.insert(*slot);
+    ASSERT_TRUE(SetKernelArgs(kernel->get(), buffers[0], buffers[1], buffers[2], buffers[3],
+                              static_cast<cl_uint>(dev->slots_per_allocation()),
+                              static_cast<cl_uint>(*slot), samples, *out)
+                    .ok());
+    ASSERT_TRUE(Cc().EnqueueKernel1D(kernel->get(), samples).ok());
+    std::vector<uint16_t> copied(samples);
+    ASSERT_TRUE(Cc().ReadBuffer(*out, 0, samples * 2, copied.data()).ok());
+    ASSERT_EQ(copied, HostBrick(*scene->tree, id)) << "node " << id << " slot " << *slot;
+  }
+  EXPECT_EQ(slots.size(), 10u);
+}
+
+// Stamps slots through the test kernel, as a render pass would.
+void MarkSlots(const DeviceOctree& dev, const std::vector<uint32_t>& slots, uint32_t frame) {
+  const testing::ClTestEnv& env = SharedClTestEnv();
+  auto kernel = env.programs->CreateKernel("device_octree_test.cl", "MarkSlots", kTestBuildOptions);
+  ASSERT_TRUE(kernel.ok()) << kernel.status().ToString();
+  auto list = Cc().CreateBuffer(CL_MEM_READ_ONLY, slots.size() * 4, slots.data());
+  ASSERT_TRUE(list.ok());
+  ASSERT_TRUE(SetKernelArgs(kernel->get(), *list, static_cast<cl_uint>(slots.size()),
+                            dev.slot_used(), frame)
+                  .ok());
+  ASSERT_TRUE(Cc().EnqueueKernel1D(kernel->get(), slots.size()).ok());
+  ASSERT_TRUE(Cc().Finish().ok());
+}
+
+TEST(DeviceOctreeTest, EvictsLeastRecentlyUsedAndNeverProtectedOrFreshSlots) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  DeviceOctreeOptions options;
+  options.brick_buffer_bytes = 8 * tree.geometry().brick_samples() * 2;
+  auto dev = MakeDevice(scene->tree.get(), options);
+  ASSERT_NE(dev, nullptr);
+  ASSERT_EQ(dev->slot_count(), 8u);
+  const int root = tree.geometry().root_level();
+  // A: the root and 7 of its children (a closed chain: no ancestors to add).
+  std::vector<uint32_t> a = {0};
+  const std::vector<NodeSnapshot> level2 = Bricked(tree, root - 1);
+  ASSERT_EQ(level2.size(), 8u);
+  for (int i = 0; i < 7; ++i) a.push_back(level2[i].id);
+  UploadStats stats;
+  ASSERT_TRUE(dev->UploadAll(a, 0, &stats).ok());
+  ASSERT_EQ(stats.uploaded, 8u);
+  // Stamps: a[1..3] used in frame 1, a[4..5] in frame 2, a[6] in frame 3; a[0], a[7] never.
+  auto slots_of = [&](size_t lo, size_t hi) {
+    std::vector<uint32_t> s;
+    for (size_t i = lo; i < hi; ++i) s.push_back(*dev->SlotOf(a[i]));
+    return s;
+  };
+  const uint32_t f1 = *dev->BeginFrame();
+  MarkSlots(*dev, slots_of(1, 4), f1);
+  const uint32_t f2 = *dev->BeginFrame();
+  MarkSlots(*dev, slots_of(4, 6), f2);
+  const uint32_t f3 = *dev->BeginFrame();
+  MarkSlots(*dev, slots_of(6, 7), f3);
+  ASSERT_TRUE(dev->ReadFeedback().ok());
+  EXPECT_EQ(dev->slot_stamps()[*dev->SlotOf(a[4])], f2);
+
+  // B: three bricked children of the protected a[4..6] (resident parents: no chain to add).
+  std::vector<uint32_t> b;
+  for (size_t i = 4; i < 7; ++i) {
+    const NodeSnapshot parent = *tree.GetNode(a[i]);
+    for (uint32_t o = 0; o < 8 && b.size() < 3; ++o) {
+      const auto child = tree.GetNode(parent.child_group * 8 + o);
+      if (child.has_value() && child->has_brick()) b.push_back(child->id);
+    }
+  }
+  ASSERT_EQ(b.size(), 3u);
+  // Slots stamped >= f2 are protected. Victims, oldest first: a[7] (stamp 0, level 2), the root
+  // a[0] (stamp 0, coarser: evicted after a[7]), then the lowest slot of a[1..3] (stamp f1).
+  uint32_t lru_f1 = a[1];
+  for (size_t i = 2; i < 4; ++i) {
+    if (*dev->SlotOf(a[i]) < *dev->SlotOf(lru_f1)) lru_f1 = a[i];
+  }
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.protect_frame = f2;
+  ASSERT_TRUE(dev->Upload(b, budget, &stats).ok());
+  EXPECT_EQ(stats.requested, 3u);
+  EXPECT_EQ(stats.uploaded, 3u);
+  EXPECT_EQ(stats.evicted, 3u);
+  EXPECT_FALSE(dev->SlotOf(a[7]).has_value());
+  EXPECT_FALSE(dev->SlotOf(a[0]).has_value());
+  EXPECT_FALSE(dev->SlotOf(lru_f1).has_value());
+  for (size_t i = 1; i < 7; ++i) {
+    if (a[i] != lru_f1) {
+      EXPECT_TRUE(dev->SlotOf(a[i]).has_value()) << i;
+    }
+  }
+  for (uint32_t id : b) EXPECT_TRUE(dev->SlotOf(id).has_value()) << id;
+
+  // Everything is evictable now, but not what this very call uploads: more new requests than
+  // slots fill the 8 slots once and defer the rest.
+  std::vector<uint32_t> previous;
+  for (uint32_t id : a) {
+    if (dev->SlotOf(id).has_value()) previous.push_back(id);
+  }
+  previous.insert(previous.end(), b.begin(), b.end());
+  std::vector<uint32_t> c;
+  for (const NodeSnapshot& n : Bricked(tree, root - 2)) {
+    if (std::find(b.begin(), b.end(), n.id) == b.end()) c.push_back(n.id);
+  }
+  ASSERT_GE(c.size(), 9u);
+  budget.protect_frame = std::numeric_limits<uint32_t>::max();
+  ASSERT_TRUE(dev->Upload(c, budget, &stats).ok());
+  EXPECT_GE(stats.requested, c.size());
+  EXPECT_EQ(stats.uploaded, 8u);
+  EXPECT_EQ(stats.evicted, 8u);
+  EXPECT_EQ(stats.deferred, stats.requested - 8);
+  EXPECT_EQ(dev->resident_bricks(), 8u);
+  for (uint32_t id : previous) EXPECT_FALSE(dev->SlotOf(id).has_value()) << id;
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 1),
+      -1);
+}
+
+TEST(DeviceOctreeTest, StaleResidentBricksAreReuploadedFirst) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 2));
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  auto dev = MakeDevice(&tree);
+  ASSERT_NE(dev, nullptr);
+  const std::vector<uint32_t> ids = Ids(Bricked(tree));
+  ASSERT_TRUE(dev->UploadAll(ids, 0).ok());
+  std::map<uint32_t, std::vector<uint16_t>> before;
+  for (uint32_t id : ids) before[id] = DeviceBrick(*dev, *dev->SlotOf(id));
+
+  // Re-insert a block of different values in channel 1 inside one leaf.
+  const octree::Box box{{17, 17, 17}, {21, 21, 21}};
+  std::vector<uint16_t> data(64, 777);
+  ASSERT_TRUE(tree.Insert(1, box, std::as_bytes(std::span(data))).ok());
+  SyncStats sync;
+  ASSERT_TRUE(dev->Sync(&sync).ok());
+  EXPECT_GE(sync.stale_bricks, 1u);
+  // Until the re-upload the old bytes stay visible, still resident.
+  uint64_t changed = 0;
+  for (uint32_t id : ids) {
+    ASSERT_TRUE(dev->SlotOf(id).has_value());
+    EXPECT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), before[id]);
+    if (HostBrick(tree, id) != before[id]) ++changed;
+  }
+  EXPECT_GE(changed, 1u);
+  EXPECT_GE(sync.stale_bricks, changed);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+      -1);
+
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload({}, budget, &stats).ok());
+  EXPECT_EQ(stats.reuploaded, sync.stale_bricks);
+  EXPECT_EQ(stats.uploaded, stats.reuploaded);
+  EXPECT_EQ(stats.evicted, 0u);
+  for (uint32_t id : ids) {
+    ASSERT_TRUE(dev->SlotOf(id).has_value());
+    EXPECT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), HostBrick(tree, id)) << id;
+  }
+  // Nothing is stale any more.
+  ASSERT_TRUE(dev->Upload({}, budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 0u);
+}
+
+TEST(DeviceOctreeTest, PruningFreesSlotsAndReusedIdsGetTheirOwnBricks) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 1);
+  spec.size = {32, 32, 32};
+  auto scene = Scene(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  auto dev = MakeDevice(&tree);
+  ASSERT_NE(dev, nullptr);
+  const std::vector<uint32_t> before = Ids(Bricked(tree));
+  ASSERT_TRUE(dev->UploadAll(before, 0).ok());
+  ASSERT_EQ(dev->resident_bricks(), before.size());
+
+  // A constant volume: every node becomes homogeneous, the root drops all its descendants.
+  const octree::Box all{{0, 0, 0}, {32, 32, 32}};
+  std::vector<uint16_t> constant(all.VoxelCount(), 500);
+  ASSERT_TRUE(tree.Insert(0, all, std::as_bytes(std::span(constant))).ok());
+  ASSERT_FALSE(tree.GetNode(0)->has_children());
+  SyncStats sync;
+  ASSERT_TRUE(dev->Sync(&sync).ok());
+  EXPECT_EQ(dev->resident_bricks(), 0u);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 1),
+      -1);
+
+  // Noise again (other values): the groups, and so the ids, are created anew.
+  for (auto& v : scene->voxels[0]) v = static_cast<uint16_t>(v ^ 0x5555u);
+  ASSERT_TRUE(scene->InsertPlanes(0, 32).ok());
+  ASSERT_TRUE(dev->Sync(&sync).ok());
+  const std::vector<uint32_t> after = Ids(Bricked(tree));
+  ASSERT_TRUE(dev->UploadAll(after, 0).ok());
+  EXPECT_EQ(dev->resident_bricks(), after.size());
+  for (uint32_t id : after) {
+    ASSERT_TRUE(dev->SlotOf(id).has_value()) << id;
+    ASSERT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), HostBrick(tree, id)) << id;
+  }
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 1),
+      -1);
+}
+
+// Runs RequestNodes over `ids` in frame `frame`.
+void RequestNodes(const DeviceOctree& dev, const std::vector<uint32_t>& ids, uint32_t frame) {
+  const testing::ClTestEnv& env = SharedClTestEnv();
+  auto kernel =
+      env.programs->CreateKernel("device_octree_test.cl", "RequestNodes", kTestBuildOptions);
+  ASSERT_TRUE(kernel.ok()) << kernel.status().ToString();
+  auto list = Cc().CreateBuffer(CL_MEM_READ_ONLY, ids.size() * 4, ids.data());
+  ASSERT_TRUE(list.ok());
+  ASSERT_TRUE(SetKernelArgs(kernel->get(), *list, static_cast<cl_uint>(ids.size()),
+                            dev.request_flags(), dev.request_list(),
+                            static_cast<cl_uint>(dev.request_capacity()), frame)
+                  .ok());
+  ASSERT_TRUE(Cc().EnqueueKernel1D(kernel->get(), ids.size()).ok());
+  ASSERT_TRUE(Cc().Finish().ok());
+}
+
+TEST(DeviceOctreeTest, FeedbackReturnsEachRequestOnceAndDropsOverflow) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  const std::vector<uint32_t> distinct = {0, 9, 17, 33, 40, 63};
+  std::vector<uint32_t> ids;
+  for (int i = 0; i < 2000; ++i) ids.push_back(distinct[(i * 7) % distinct.size()]);
+
+  auto dev = MakeDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  for (int round = 0; round < 2; ++round) {  // The next frame asks again.
+    const uint32_t frame = *dev->BeginFrame();
+    EXPECT_EQ(frame, static_cast<uint32_t>(round + 1));
+    RequestNodes(*dev, ids, frame);
+    auto got = dev->ReadFeedback();
+    ASSERT_TRUE(got.ok()) << got.status().ToString();
+    std::vector<uint32_t> sorted = *got;
+    std::sort(sorted.begin(), sorted.end());
+    EXPECT_EQ(sorted, distinct) << "round " << round;
+  }
+
+  // A capacity of 3: three distinct requested ids come back, the rest is dropped.
+  DeviceOctreeOptions small;
+  small.request_capacity = 3;
+  auto tight = MakeDevice(scene->tree.get(), small);
+  ASSERT_NE(tight, nullptr);
+  const uint32_t frame = *tight->BeginFrame();
+  RequestNodes(*tight, ids, frame);
+  // Slot stamps: slots 0, 2 and 5 used by this frame.
+  MarkSlots(*tight, {0, 2, 5, 2, 0}, frame);
+  auto got = tight->ReadFeedback();
+  ASSERT_TRUE(got.ok());
+  ASSERT_EQ(got->size(), 3u);
+  std::set<uint32_t> unique(got->begin(), got->end());
+  EXPECT_EQ(unique.size(), 3u);
+  for (uint32_t id : unique) {
+    EXPECT_TRUE(std::binary_search(distinct.begin(), distinct.end(), id)) << id;
+  }
+  const std::span<const uint32_t> stamps = tight->slot_stamps();
+  for (uint32_t s = 0; s < tight->slot_count(); ++s) {
+    EXPECT_EQ(stamps[s], (s == 0 || s == 2 || s == 5) ? frame : 0u) << "slot " << s;
+  }
+  // A new frame clears the list.
+  ASSERT_TRUE(tight->BeginFrame().ok());
+  got = tight->ReadFeedback();
+  ASSERT_TRUE(got.ok());
+  EXPECT_TRUE(got->empty());
+}
+
+TEST(DeviceOctreeTest, RejectsABrickBufferThatNeedsTooManyAllocations) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  const uint64_t brick = scene->tree->geometry().brick_samples() * 2;
+  DeviceOctreeOptions options;
+  options.max_allocation_bytes = brick;     // One slot per allocation ...
+  options.brick_buffer_bytes = 10 * brick;  // ... but ten slots.
+  auto dev = DeviceOctree::Create(&Cc(), scene->tree.get(), options);
+  ASSERT_FALSE(dev.ok());
+  EXPECT_EQ(dev.status().code(), StatusCode::kResourceExhausted) << dev.status().ToString();
+  options.max_allocation_bytes = brick - 1;  // Not even one brick.
+  options.brick_buffer_bytes = 8 * brick;
+  dev = DeviceOctree::Create(&Cc(), scene->tree.get(), options);
+  ASSERT_FALSE(dev.ok());
+  EXPECT_EQ(dev.status().code(), StatusCode::kResourceExhausted);
+  // Exactly kMaxBrickAllocations allocations is fine.
+  options.max_allocation_bytes = 2 * brick;
+  dev = DeviceOctree::Create(&Cc(), scene->tree.get(), options);
+  ASSERT_TRUE(dev.ok()) << dev.status().ToString();
+  EXPECT_EQ((*dev)->allocation_count(), kMaxBrickAllocations);
+}
+
+}  // namespace
+}  // namespace octoscope::render
