@@ -1,0 +1,459 @@
+#include "render/volume_renderer.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <map>
+#include <numbers>
+#include <string>
+#include <utility>
+
+#include "../../kernels/node_format.h"
+#include "../../kernels/render_format.h"
+#include "render/cl_call.h"
+#include "render/cl_handles.h"
+
+namespace octoscope::render {
+
+// The frame and channel structs are passed to the kernel byte for byte: only 32-bit fields, no
+// padding, the offsets OpenCL C computes for the same declarations.
+static_assert(sizeof(float) == 4 && sizeof(int) == 4);
+static_assert(sizeof(OctoRenderFrame) == 44 * 4);
+static_assert(offsetof(OctoRenderFrame, origin) == 0);
+static_assert(offsetof(OctoRenderFrame, projection) == 12);
+static_assert(offsetof(OctoRenderFrame, forward) == 16);
+static_assert(offsetof(OctoRenderFrame, pixel_scale) == 28);
+static_assert(offsetof(OctoRenderFrame, right) == 32);
+static_assert(offsetof(OctoRenderFrame, t_min) == 44);
+static_assert(offsetof(OctoRenderFrame, up) == 48);
+static_assert(offsetof(OctoRenderFrame, lod_scale) == 60);
+static_assert(offsetof(OctoRenderFrame, clip) == 64);
+static_assert(offsetof(OctoRenderFrame, background) == 112);
+static_assert(offsetof(OctoRenderFrame, volume) == 128);
+static_assert(offsetof(OctoRenderFrame, step) == 140);
+static_assert(offsetof(OctoRenderFrame, clip_count) == 144);
+static_assert(offsetof(OctoRenderFrame, active_channels) == 156);
+static_assert(offsetof(OctoRenderFrame, inv_reference) == 168);
+static_assert(sizeof(OctoChannelParams) == 24 * 4);
+static_assert(offsetof(OctoChannelParams, color) == 48);
+static_assert(offsetof(OctoChannelParams, window_lo) == 64);
+static_assert(offsetof(OctoChannelParams, channel) == 80);
+static_assert(offsetof(OctoChannelParams, lut) == 84);
+static_assert(offsetof(OctoChannelParams, identity) == 88);
+static_assert(OCTO_MAX_CLIP_PLANES == kMaxClipPlanes && OCTO_LUT_ENTRIES == kLutEntries);
+static_assert(OCTO_MAX_ACTIVE_CHANNELS == octree::kMaxChannels);
+static_assert(kMaxBrickAllocations == 4);  // OCTO_BRICK_BUFFER_PARAMS takes four buffers.
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double MsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+int ModeDefine(RenderMode mode) {
+  switch (mode) {
+    case RenderMode::kDvr:
+      return OCTO_MODE_DVR;
+    case RenderMode::kMip:
+      return OCTO_MODE_MIP;
+    case RenderMode::kMinIp:
+      return OCTO_MODE_MINIP;
+  }
+  return OCTO_MODE_DVR;
+}
+
+// Everything the kernel needs besides the octree: the frame struct and the per-channel buffers.
+struct FrameInputs {
+  OctoRenderFrame frame{};
+  ClMem channels;  // OctoChannelParams per enabled channel (at least one entry).
+  ClMem lut;       // float4 entries (at least one).
+  int active = 0;
+};
+
+// Converts camera and parameters to the kernel's voxel-space frame (render_format.h).
+// REQUIRES: params validated for the volume.
+Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera& camera,
+                                    const RenderParams& params, const FrameOptions& options,
+                                    const octree::BrickGeometry& geometry, const Vec3& spacing) {
+  FrameInputs in;
+  OctoRenderFrame& f = in.frame;
+  const Vec3 inv{1 / spacing.x, 1 / spacing.y, 1 / spacing.z};
+  const auto& n = geometry.volume_size();
+  const Box3 box = PhysicalBounds({n[0], n[1], n[2]}, spacing);
+  const double reference_um = std::min({spacing.x, spacing.y, spacing.z});
+
+  // Orthographic rays start on the camera plane: move the origin along forward to the volume's
+  // centre (small float coordinates) and start t at minus that shift.
+  Vec3 origin = camera.position();
+  double t_min = 0;
+  const bool ortho = camera.projection() == Projection::kOrthographic;
+  if (ortho) {
+    const double shift = Dot(box.Center() - camera.position(), camera.forward());
+    origin = origin + camera.forward() * shift;
+    t_min = -shift;
+  }
+  auto put = [](float* dst, const Vec3& v) {
+    for (int a = 0; a < 3; ++a) dst[a] = static_cast<float>(v[a]);
+  };
+  put(f.origin, Mul(origin, inv));
+  put(f.forward, Mul(camera.forward(), inv));
+  put(f.right, Mul(camera.right(), inv));
+  put(f.up, Mul(camera.up(), inv));
+  f.projection = ortho ? OCTO_PROJECTION_ORTHO : OCTO_PROJECTION_PERSPECTIVE;
+  const double pixel_scale =
+      ortho ? camera.ortho_height() / camera.height()
+            : 2 * std::tan(camera.fov_y_degrees() * std::numbers::pi / 360.0) / camera.height();
+  f.pixel_scale = static_cast<float>(pixel_scale);
+  f.t_min = static_cast<float>(t_min);
+  // Footprint in finest voxels (ortho) or per µm of distance (perspective), times 2^bias.
+  f.lod_scale = static_cast<float>(pixel_scale * std::exp2(options.lod_bias) / reference_um);
+  f.inv_reference = static_cast<float>(1 / reference_um);
+
+  // Physical plane n . p <= d is (n * s) . p_vox <= d in voxel space.
+  f.clip_count = static_cast<int>(params.clip_planes.size());
+  for (size_t k = 0; k < params.clip_planes.size(); ++k) {
+    put(f.clip[k], Mul(params.clip_planes[k].normal, spacing));
+    f.clip[k][3] = static_cast<float>(params.clip_planes[k].distance);
+  }
+  const double bg_a = params.background[3];
+  for (int k = 0; k < 3; ++k) f.background[k] = static_cast<float>(params.background[k] * bg_a);
+  f.background[3] = static_cast<float>(bg_a);
+  for (int a = 0; a < 3; ++a) f.volume[a] = static_cast<float>(n[a]);
+  f.step = static_cast<float>(params.step_voxels);
+  f.width = camera.width();
+  f.height = camera.height();
+
+  // Enabled channels only, with voxel-space transforms S^-1 T S and their LUTs.
+  std::vector<OctoChannelParams> channels;
+  std::vector<float> lut;
+  bool all_identity = true;
+  for (size_t c = 0; c < params.channels.size(); ++c) {
+    const ChannelParams& cp = params.channels[c];
+    if (!cp.enabled) continue;
+    OctoChannelParams ch{};
+    const Mat4& m = cp.transform;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j)
+        ch.transform[i * 4 + j] = static_cast<float>(m(i, j) * spacing[j] * inv[i]);
+      ch.transform[i * 4 + 3] = static_cast<float>(m(i, 3) * inv[i]);
+    }
+    ch.identity = m.IsIdentity() ? 1 : 0;
+    all_identity = all_identity && m.IsIdentity();
+    for (int k = 0; k < 3; ++k) ch.color[k] = static_cast<float>(cp.color[k]);
+    ch.window_lo = static_cast<float>(cp.level - cp.window / 2);
+    ch.inv_window = static_cast<float>(1 / cp.window);
+    ch.gamma = static_cast<float>(cp.gamma);
+    ch.opacity_scale = static_cast<float>(cp.opacity_scale);
+    ch.channel = static_cast<int>(c);
+    ch.lut = -1;
+    if (cp.lut) {
+      ch.lut = static_cast<int>(lut.size() / (4 * kLutEntries));
+      for (const volume::Rgba& e : *cp.lut) {
+        for (uint8_t v : {e.r, e.g, e.b, e.a}) lut.push_back(static_cast<float>(v / 255.0));
+      }
+    }
+    channels.push_back(ch);
+  }
+  in.active = static_cast<int>(channels.size());
+  f.active_channels = in.active;
+  f.all_identity = all_identity ? 1 : 0;
+  f.skip_empty = options.skip_empty_space ? 1 : 0;
+  if (channels.empty()) channels.emplace_back();
+  if (lut.empty()) lut.assign(4, 0.0f);
+  OCTO_ASSIGN_OR_RETURN(
+      in.channels, context.CreateBuffer(CL_MEM_READ_ONLY, channels.size() * sizeof(channels[0]),
+                                        channels.data()));
+  OCTO_ASSIGN_OR_RETURN(
+      in.lut, context.CreateBuffer(CL_MEM_READ_ONLY, lut.size() * sizeof(float), lut.data()));
+  return in;
+}
+
+OctoTreeGeometry TreeGeometry(const octree::BrickGeometry& g) {
+  OctoTreeGeometry t{};
+  for (int a = 0; a < 3; ++a) {
+    t.volume_size[a] = static_cast<int>(g.volume_size()[a]);
+    t.brick_size[a] = static_cast<int>(g.brick_size()[a]);
+  }
+  t.root_level = g.root_level();
+  t.channels = g.channels();
+  return t;
+}
+
+}  // namespace
+
+struct VolumeRenderer::Impl {
+  const ComputeContext* context = nullptr;
+  ProgramCache* programs = nullptr;
+  std::string build_options;
+  // One kernel per (mode define, refine), created on first use.
+  std::map<std::pair<int, bool>, ClKernel> kernels;
+  ClMem counters;  // OCTO_COUNTER_WORDS uints, cleared before every pass.
+  ClMem dummy;     // Stands in for the ray-state buffers of full frames.
+
+  Result<cl_kernel> Kernel(RenderMode mode, bool refine) {
+    const auto key = std::make_pair(ModeDefine(mode), refine);
+    auto it = kernels.find(key);
+    if (it == kernels.end()) {
+      const std::string options = build_options + " -DOCTO_MODE=" + std::to_string(key.first) +
+                                  " -DOCTO_REFINE=" + (refine ? "1" : "0");
+      OCTO_ASSIGN_OR_RETURN(ClKernel kernel,
+                            programs->CreateKernel("raycast.cl", "RayCast", options));
+      it = kernels.emplace(key, std::move(kernel)).first;
+    }
+    return it->second.get();
+  }
+
+  // Sets every argument and runs one pass over `pixels` work items; reads the counters back
+  // (finished rays, samples). Adds the kernel time to stats.
+  Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
+                 const ClMem& image, const ClMem& ray_next, const ClMem& ray_acc,
+                 const ClMem& ray_extreme, size_t pixels, uint32_t* finished, uint64_t* samples,
+                 FrameStats* stats) {
+    const uint32_t zeros[OCTO_COUNTER_WORDS] = {0, 0, 0, 0};
+    OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
+    const auto bricks = octree.brick_buffers();
+    OCTO_RETURN_IF_ERROR(SetKernelArgs(
+        kernel, octree.node_buffer(), bricks[0], bricks[1], bricks[2], bricks[3],
+        octree.slots_per_allocation(), TreeGeometry(octree.geometry()), in.frame, in.channels,
+        in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
+        octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme));
+    const Clock::time_point start = Clock::now();
+    OCTO_RETURN_IF_ERROR(context->EnqueueKernel1D(kernel, pixels));
+    OCTO_RETURN_IF_ERROR(context->Finish());
+    stats->ms_kernel += MsSince(start);
+    uint32_t words[OCTO_COUNTER_WORDS];
+    OCTO_RETURN_IF_ERROR(context->ReadBuffer(counters, 0, sizeof(words), words));
+    *finished = words[OCTO_COUNTER_FINISHED];
+    *samples = (uint64_t{words[OCTO_COUNTER_SAMPLES_HI]} << 32) | words[OCTO_COUNTER_SAMPLES_LO];
+    return Status::Ok();
+  }
+
+  // Reads the pass's requests and uploads them within `budget`; adds to stats.
+  Status Feedback(DeviceOctree& octree, UploadBudget budget, FrameStats* stats,
+                  uint64_t* uploaded) {
+    OCTO_ASSIGN_OR_RETURN(std::vector<uint32_t> requests, octree.ReadFeedback());
+    stats->requests += requests.size();
+    UploadStats upload;
+    const Clock::time_point start = Clock::now();
+    OCTO_RETURN_IF_ERROR(octree.Upload(requests, budget, &upload));
+    stats->ms_upload += MsSince(start);
+    stats->bricks_uploaded += upload.uploaded;
+    *uploaded = upload.uploaded;
+    return Status::Ok();
+  }
+};
+
+struct Refinement::State {
+  RenderMode mode = RenderMode::kDvr;
+  FrameOptions options;
+  FrameInputs inputs;
+  ClMem image;        // float4 per pixel.
+  ClMem ray_next;     // uint per pixel: next sample index or OCTO_RAY_DONE.
+  ClMem ray_acc;      // float4 per pixel (DVR).
+  ClMem ray_extreme;  // float per pixel and enabled channel (MIP/MinIP).
+  int width = 0;
+  int height = 0;
+  uint64_t finished = 0;
+  int stalled_passes = 0;  // Consecutive passes without progress.
+};
+
+Refinement::~Refinement() = default;
+
+VolumeRenderer::~VolumeRenderer() = default;
+
+Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeContext* context,
+                                                               ProgramCache* programs,
+                                                               DeviceOctree* device_octree,
+                                                               const Vec3& spacing_um,
+                                                               std::string_view build_options) {
+  if (context == nullptr || programs == nullptr || device_octree == nullptr) {
+    return InvalidArgumentError("volume renderer: context, programs and octree are required");
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!std::isfinite(spacing_um[a]) || spacing_um[a] <= 0) {
+      return InvalidArgumentError("volume renderer: spacing must be finite and > 0");
+    }
+  }
+  std::unique_ptr<VolumeRenderer> r(new VolumeRenderer());
+  r->impl_ = std::make_unique<Impl>();
+  r->impl_->context = context;
+  r->impl_->programs = programs;
+  r->impl_->build_options = std::string(build_options);
+  OCTO_ASSIGN_OR_RETURN(r->impl_->counters,
+                        context->CreateBuffer(CL_MEM_READ_WRITE, OCTO_COUNTER_WORDS * 4));
+  OCTO_ASSIGN_OR_RETURN(r->impl_->dummy, context->CreateBuffer(CL_MEM_READ_WRITE, 16));
+  r->device_octree_ = device_octree;
+  r->spacing_ = spacing_um;
+  // The default mode's full-frame program is built now, so a broken kernel fails early.
+  OCTO_RETURN_IF_ERROR(r->impl_->Kernel(RenderMode::kDvr, false).status());
+  return r;
+}
+
+Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
+                                                    const RenderParams& params,
+                                                    const FrameOptions& options,
+                                                    FrameStats* stats) {
+  const Clock::time_point start = Clock::now();
+  DeviceOctree& octree = *device_octree_;
+  OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
+  if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
+  FrameStats local;
+  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false));
+  OCTO_ASSIGN_OR_RETURN(FrameInputs in, MakeFrameInputs(*impl_->context, camera, params, options,
+                                                        octree.geometry(), spacing_));
+  // Nodes first (construction may have moved on), then the frame's feedback.
+  OCTO_RETURN_IF_ERROR(octree.Sync());
+  OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
+  const size_t pixels = static_cast<size_t>(camera.width()) * camera.height();
+  OCTO_ASSIGN_OR_RETURN(
+      ClMem image, impl_->context->CreateBuffer(CL_MEM_WRITE_ONLY, pixels * 4 * sizeof(float)));
+  uint32_t finished = 0;
+  uint64_t samples = 0;
+  OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, in, frame, image, impl_->dummy, impl_->dummy,
+                                      impl_->dummy, pixels, &finished, &samples, &local));
+  RenderImage out;
+  out.width = camera.width();
+  out.height = camera.height();
+  out.rgba.resize(pixels * 4);
+  OCTO_RETURN_IF_ERROR(
+      impl_->context->ReadBuffer(image, 0, out.rgba.size() * sizeof(float), out.rgba.data()));
+  // Upload for the next frame; this frame's bricks stay.
+  UploadBudget budget = options.upload;
+  budget.protect_frame = frame;
+  uint64_t uploaded = 0;
+  const uint64_t requests_before = local.requests;
+  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &local, &uploaded));
+  local.passes = 1;
+  local.samples = samples;
+  local.finished_fraction = 1;
+  local.pass_finished = {1.0};
+  // Nothing requested: every sample used the level the screen needs.
+  local.final = local.requests == requests_before;
+  local.ms_total = MsSince(start);
+  if (stats) *stats = std::move(local);
+  return out;
+}
+
+Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera& camera,
+                                                                    const RenderParams& params,
+                                                                    const FrameOptions& options) {
+  DeviceOctree& octree = *device_octree_;
+  OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
+  if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
+  if (options.max_passes < 0) return InvalidArgumentError("max_passes must be >= 0");
+  // Build the program now: a pass should not pay for compilation.
+  OCTO_RETURN_IF_ERROR(impl_->Kernel(params.mode, true).status());
+  std::unique_ptr<Refinement> r(new Refinement());
+  r->state_ = std::make_unique<Refinement::State>();
+  Refinement::State& s = *r->state_;
+  s.mode = params.mode;
+  s.options = options;
+  s.width = camera.width();
+  s.height = camera.height();
+  OCTO_ASSIGN_OR_RETURN(s.inputs, MakeFrameInputs(*impl_->context, camera, params, options,
+                                                  octree.geometry(), spacing_));
+  const size_t pixels = static_cast<size_t>(s.width) * s.height;
+  const ComputeContext& ctx = *impl_->context;
+  // Unprocessed pixels show the background until their ray has run.
+  const float* bg = s.inputs.frame.background;
+  std::vector<float> image(pixels * 4);
+  for (size_t i = 0; i < pixels; ++i) std::copy(bg, bg + 4, image.begin() + 4 * i);
+  OCTO_ASSIGN_OR_RETURN(s.image,
+                        ctx.CreateBuffer(CL_MEM_READ_WRITE, image.size() * 4, image.data()));
+  const std::vector<uint32_t> next(pixels, 0);
+  OCTO_ASSIGN_OR_RETURN(s.ray_next, ctx.CreateBuffer(CL_MEM_READ_WRITE, pixels * 4, next.data()));
+  if (params.mode == RenderMode::kDvr) {
+    const std::vector<float> acc(pixels * 4, 0.0f);
+    OCTO_ASSIGN_OR_RETURN(s.ray_acc,
+                          ctx.CreateBuffer(CL_MEM_READ_WRITE, acc.size() * 4, acc.data()));
+    OCTO_ASSIGN_OR_RETURN(s.ray_extreme, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
+  } else {
+    // "Not sampled" lies outside [0, 1]: below for maxima, above for minima.
+    const float init = params.mode == RenderMode::kMip ? -1.0f : 2.0f;
+    const std::vector<float> extreme(pixels * std::max(1, s.inputs.active), init);
+    OCTO_ASSIGN_OR_RETURN(s.ray_extreme,
+                          ctx.CreateBuffer(CL_MEM_READ_WRITE, extreme.size() * 4, extreme.data()));
+    OCTO_ASSIGN_OR_RETURN(s.ray_acc, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
+  }
+  return r;
+}
+
+Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
+  const Clock::time_point start = Clock::now();
+  if (refinement.state_ == nullptr) return InvalidArgumentError("refinement has no state");
+  Refinement::State& s = *refinement.state_;
+  FrameStats& stats = refinement.stats_;
+  const size_t pixels = static_cast<size_t>(s.width) * s.height;
+  if (s.finished >= pixels) return 1.0;
+  DeviceOctree& octree = *device_octree_;
+  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(s.mode, true));
+  OCTO_RETURN_IF_ERROR(octree.Sync());
+  OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
+  uint32_t finished = 0;
+  uint64_t samples = 0;
+  OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, s.inputs, frame, s.image, s.ray_next,
+                                      s.ray_acc, s.ray_extreme, pixels, &finished, &samples,
+                                      &stats));
+  // Paused rays hold no brick between passes: protect nothing but what this upload brings in
+  // (the upload manager never evicts a brick it uploaded in the same call).
+  UploadBudget budget = s.options.upload;
+  budget.protect_frame = frame + 1;
+  uint64_t uploaded = 0;
+  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &uploaded));
+  s.finished += finished;
+  stats.passes += 1;
+  stats.samples += samples;
+  const double fraction = static_cast<double>(s.finished) / static_cast<double>(pixels);
+  stats.finished_fraction = fraction;
+  stats.pass_finished.push_back(fraction);
+  stats.final = s.finished >= pixels;
+  stats.ms_total += MsSince(start);
+  // Every unfinished ray waits for a brick: a pass that neither advanced a ray nor uploaded
+  // anything will never progress (nor will endlessly many that keep uploading in vain).
+  if (finished == 0 && samples == 0 && !stats.final) {
+    ++s.stalled_passes;
+    if (uploaded == 0 || s.stalled_passes > 1000) {
+      return InternalError("refinement makes no progress: " + std::to_string(pixels - s.finished) +
+                           " rays wait for bricks that cannot be made resident (" +
+                           std::to_string(octree.slot_count()) + " brick slots)");
+    }
+  } else {
+    s.stalled_passes = 0;
+  }
+  return fraction;
+}
+
+Result<RenderImage> VolumeRenderer::ReadImage(const Refinement& refinement) {
+  if (refinement.state_ == nullptr) return InvalidArgumentError("refinement has no state");
+  const Refinement::State& s = *refinement.state_;
+  RenderImage out;
+  out.width = s.width;
+  out.height = s.height;
+  out.rgba.resize(static_cast<size_t>(s.width) * s.height * 4);
+  OCTO_RETURN_IF_ERROR(
+      impl_->context->ReadBuffer(s.image, 0, out.rgba.size() * sizeof(float), out.rgba.data()));
+  return out;
+}
+
+Result<RenderImage> VolumeRenderer::Render(const Camera& camera, const RenderParams& params,
+                                           const FrameOptions& options, FrameStats* stats,
+                                           const std::atomic<bool>* cancel) {
+  if (options.mode == FrameMode::kFullFrame) {
+    return RenderFullFrame(camera, params, options, stats);
+  }
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<Refinement> refinement,
+                        StartRefinement(camera, params, options));
+  while (!refinement->complete()) {
+    if (options.max_passes > 0 && refinement->stats().passes >= options.max_passes) break;
+    if (cancel != nullptr && cancel->load()) return CancelledError("render cancelled");
+    OCTO_RETURN_IF_ERROR(RefinePass(*refinement).status());
+  }
+  OCTO_ASSIGN_OR_RETURN(RenderImage image, ReadImage(*refinement));
+  if (stats) *stats = refinement->stats();
+  return image;
+}
+
+}  // namespace octoscope::render

@@ -1,0 +1,151 @@
+// VolumeRenderer: OpenCL ray casting of a DeviceOctree (paper, "Basic Ray-Casting", "Full-Frame
+// Ray-Casting", "Refinement Ray-Casting"), with the definitions of render/render_params.h and
+// render/camera.h — the images agree with the CPU reference renderer (reference_renderer.h) up to
+// float precision and the level of detail used.
+//
+// Per sample (kernels/raycast.cl): the ray is clipped to the volume box and the clipping planes
+// exactly as ClipRayToVolume does, sampled at the same segment midpoints (entry + (i + 0.5) dt,
+// never accumulated), and each ENABLED channel is read at its transformed position. The level of
+// detail is chosen PER SAMPLE: the pixel footprint at the sample's distance (constant for
+// orthographic cameras) in level-0 voxels of the finest spacing, level = clamp(floor(log2(
+// footprint) + lod_bias), 0, root level), so the screen's resolution decides and nothing finer
+// is fetched. Empty space: a sample in a brickless leaf node (homogeneous or never written) whose
+// averages give zero opacity (DVR) or cannot raise any channel's running maximum (MIP; lower the
+// minimum for MinIP) skips to the node's exit (only when no enabled channel has a transform that
+// moves it, since then all channels read the same node).
+//
+// Modes:
+//  * Full frame: a sample whose wanted node (the level the screen needs) is not resident uses the
+//    deepest resident ancestor within two levels, else the wanted node's average, and requests
+//    the node (the upload manager adds its ancestors). One pass per frame; the requests are
+//    uploaded within the frame's budget after the image is read, for the next frame.
+//  * Refinement: the ray state (next sample index, accumulated colour / per-channel extremum)
+//    is kept on the device between passes; a ray pauses at the first sample whose wanted brick
+//    is missing (DVR and MIP alike) and resumes there in the next pass, after the upload.
+//    Each pass reports the fraction of finished rays. Because only the bricks of the ray fronts
+//    are needed in one pass, working sets larger than the brick buffer finish too (a pass that
+//    advances no ray with everything requested resident is an internal error, never a hang).
+//
+// Thread safety: NOT thread-safe; one render thread owns the renderer, its DeviceOctree and the
+// device queue (render_service.h). A Refinement belongs to the renderer that started it.
+#ifndef OCTOSCOPE_RENDER_VOLUME_RENDERER_H_
+#define OCTOSCOPE_RENDER_VOLUME_RENDERER_H_
+
+#include <atomic>
+#include <cstdint>
+#include <memory>
+#include <string_view>
+#include <vector>
+
+#include "render/camera.h"
+#include "render/device.h"
+#include "render/device_octree.h"
+#include "render/linear_algebra.h"
+#include "render/program_cache.h"
+#include "render/reference_renderer.h"
+#include "render/render_params.h"
+#include "util/result.h"
+#include "util/status.h"
+
+namespace octoscope::render {
+
+enum class FrameMode { kFullFrame, kRefine };
+
+struct FrameOptions {
+  FrameMode mode = FrameMode::kFullFrame;
+  // Added to the per-sample level: +1 renders at half the screen's resolution, -1 at twice it.
+  double lod_bias = 0;
+  // Per frame (full frame) or per pass (refinement).
+  UploadBudget upload;
+  // Refinement: stop after this many passes (stats.final stays false); 0 = until every ray is
+  // finished.
+  int max_passes = 0;
+  // Empty-space skipping (see the file comment). Never changes the image; off only for tests and
+  // benchmarks.
+  bool skip_empty_space = true;
+};
+
+struct FrameStats {
+  double ms_total = 0;
+  double ms_kernel = 0;   // Kernel time (enqueue to finish).
+  double ms_upload = 0;   // Brick uploads.
+  int passes = 0;         // Kernel passes.
+  uint64_t samples = 0;   // Channel samples taken (trilinear reads or averages), all passes.
+  uint64_t requests = 0;  // Node requests read back, all passes.
+  uint64_t bricks_uploaded = 0;
+  double finished_fraction = 0;       // Rays finished after the last pass (full frame: 1).
+  bool final = false;                 // Refinement complete at the level the screen needs.
+  std::vector<double> pass_finished;  // finished_fraction after each pass.
+};
+
+// A refinement in progress: its camera, parameters, per-pixel ray state on the device and the
+// stats of its passes so far. Created by VolumeRenderer::StartRefinement.
+class Refinement {
+ public:
+  ~Refinement();
+  Refinement(const Refinement&) = delete;
+  Refinement& operator=(const Refinement&) = delete;
+
+  const FrameStats& stats() const { return stats_; }
+  bool complete() const { return stats_.final; }
+
+ private:
+  friend class VolumeRenderer;
+  struct State;  // Defined in volume_renderer.cpp.
+  Refinement() = default;
+
+  std::unique_ptr<State> state_;
+  FrameStats stats_;
+};
+
+class VolumeRenderer {
+ public:
+  // `context`, `programs` and `device_octree` must outlive the renderer; `spacing_um` is the
+  // volume's voxel pitch (PhysicalSpacing). The ray-casting programs (one per mode and frame
+  // kind) are built lazily on first use, with `build_options` added to the configuring defines
+  // (tests pass "-Werror").
+  static Result<std::unique_ptr<VolumeRenderer>> Create(const ComputeContext* context,
+                                                        ProgramCache* programs,
+                                                        DeviceOctree* device_octree,
+                                                        const Vec3& spacing_um,
+                                                        std::string_view build_options = "");
+  ~VolumeRenderer();
+  VolumeRenderer(const VolumeRenderer&) = delete;
+  VolumeRenderer& operator=(const VolumeRenderer&) = delete;
+
+  // One full-frame pass (Sync, kernel, read image and feedback, upload for the next frame).
+  // Errors when params are invalid for the volume.
+  Result<RenderImage> RenderFullFrame(const Camera& camera, const RenderParams& params,
+                                      const FrameOptions& options, FrameStats* stats = nullptr);
+
+  // Starts a refinement (allocates the ray state; runs no pass).
+  Result<std::unique_ptr<Refinement>> StartRefinement(const Camera& camera,
+                                                      const RenderParams& params,
+                                                      const FrameOptions& options);
+  // One pass over the unfinished rays, then the upload of what they requested. Returns the
+  // fraction of finished rays (1 = complete). Adds to refinement's stats.
+  Result<double> RefinePass(Refinement& refinement);
+  // The image so far: finished rays final, unfinished ones as composited up to their pause.
+  Result<RenderImage> ReadImage(const Refinement& refinement);
+
+  // Whole frames: full frame = one pass; refinement = passes until complete, options.max_passes
+  // or `cancel` (checked between passes; kCancelled). Stats summed over passes.
+  Result<RenderImage> Render(const Camera& camera, const RenderParams& params,
+                             const FrameOptions& options, FrameStats* stats = nullptr,
+                             const std::atomic<bool>* cancel = nullptr);
+
+  DeviceOctree& device_octree() { return *device_octree_; }
+  const Vec3& spacing() const { return spacing_; }
+
+ private:
+  struct Impl;
+  VolumeRenderer() = default;
+
+  std::unique_ptr<Impl> impl_;
+  DeviceOctree* device_octree_ = nullptr;
+  Vec3 spacing_;
+};
+
+}  // namespace octoscope::render
+
+#endif  // OCTOSCOPE_RENDER_VOLUME_RENDERER_H_

@@ -1,0 +1,455 @@
+// VolumeRenderer (kernels/raycast.cl) against independent oracles: the CPU reference renderer
+// (double precision, full resolution, no octree) on the SAME voxels, and direct computations from
+// the voxels (column maxima, brick means). The device is never its own oracle, except where the
+// claim is "identical" (skipping on/off, roomy vs tiny brick buffer, full frame vs refinement).
+//
+// Tolerances: the GPU works in float. Positions agree with the reference to ~1e-5 voxels, the
+// transfer functions to ~1e-6; DVR compositing of <= ~100 samples in float accumulates ~1e-5; and
+// the early-termination threshold 0.999 may be crossed one sample apart, which moves a pixel by
+// at most 0.001 of the remaining light. 2/255 per component therefore has a wide margin while
+// still catching any wrong voxel, level, step or compositing rule (those give errors >= 0.05).
+#include "render/volume_renderer.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "cl_test_env.h"
+#include "render/device_octree.h"
+#include "render/reference_renderer.h"
+#include "render_fixture.h"
+#include "volume_renderer_rig.h"
+
+namespace octoscope::render {
+namespace {
+
+using ::octoscope::render::testing::AllFinite;
+using ::octoscope::render::testing::CompareImages;
+using ::octoscope::render::testing::Describe;
+using ::octoscope::render::testing::Gpu;
+using ::octoscope::render::testing::Hash;
+using ::octoscope::render::testing::ImageDiff;
+using ::octoscope::render::testing::kTol;
+using ::octoscope::render::testing::MakeRig;
+using ::octoscope::render::testing::Reference;
+using ::octoscope::render::testing::Refine;
+using ::octoscope::render::testing::Rig;
+using ::octoscope::render::testing::SceneSpec;
+using ::octoscope::render::testing::Standard;
+
+// Noise with some structure: smooth gradients plus per-voxel noise.
+SceneSpec NoiseSpec(std::array<int64_t, 3> size, int channels, octree::Vec3 brick = {16, 16, 16}) {
+  SceneSpec spec;
+  spec.size = size;
+  spec.channels = channels;
+  spec.brick = brick;
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    const double smooth = 0.5 + 0.5 * std::sin(0.3 * x + 0.2 * y * (c + 1) + 0.25 * z);
+    return static_cast<uint16_t>(40000 * smooth + (Hash(x, y, z, c) % 25000));
+  };
+  return spec;
+}
+
+TEST(VolumeRendererTest, ContractMipEqualsColumnMaxAlongZ) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {40, 24, 20};
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    return static_cast<uint16_t>(Hash(x, y, z, c) & 0xffff);
+  };
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 40, 24);
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  FrameStats stats;
+  const RenderImage image = Gpu(*rig, camera, params, Refine(), &stats);
+  ASSERT_EQ(image.width, 40);
+  EXPECT_TRUE(stats.final);
+  for (int y = 0; y < 24; ++y) {
+    for (int x = 0; x < 40; ++x) {
+      uint16_t max = 0;
+      for (int z = 0; z < 20; ++z) max = std::max(max, spec.value(0, x, y, z));
+      const auto px = image.Pixel(x, y);
+      for (int k = 0; k < 3; ++k) ASSERT_NEAR(px[k], max / 65535.0, 1.0 / 255) << x << "," << y;
+      ASSERT_EQ(px[3], 1.0f);
+    }
+  }
+  EXPECT_EQ(stats.samples, 40u * 24 * 20);
+}
+
+struct ViewCase {
+  RenderMode mode;
+  Projection projection;
+  StandardView view;
+};
+
+class ViewsTest : public ::testing::TestWithParam<ViewCase> {};
+
+TEST_P(ViewsTest, RefinementMatchesReference) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const ViewCase& c = GetParam();
+  auto rig = MakeRig(NoiseSpec({32, 24, 28}, 1));
+  ASSERT_NE(rig, nullptr);
+  // Perspective views need more pixels to keep the far side's footprint below 2 voxels.
+  const int size = c.projection == Projection::kOrthographic ? 32 : 56;
+  const Camera camera = Standard(*rig, c.view, c.projection, size, size);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, c.mode);
+  params.channels[0].opacity_scale = 0.08;
+  params.background = {0.2, 0.3, 0.4, 1};
+  FrameStats stats;
+  const RenderImage gpu = Gpu(*rig, camera, params, Refine(), &stats);
+  const RenderImage ref = Reference(*rig, camera, params);
+  EXPECT_TRUE(stats.final);
+  EXPECT_TRUE(AllFinite(gpu));
+  const ImageDiff d = CompareImages(gpu, ref);
+  EXPECT_LE(d.max_abs, kTol) << Describe(d);
+}
+
+std::vector<ViewCase> AllViews() {
+  std::vector<ViewCase> cases;
+  for (RenderMode m : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      for (StandardView v :
+           {StandardView::kX, StandardView::kY, StandardView::kZ, StandardView::kIso}) {
+        cases.push_back({m, p, v});
+      }
+    }
+  }
+  return cases;
+}
+
+INSTANTIATE_TEST_SUITE_P(All, ViewsTest, ::testing::ValuesIn(AllViews()),
+                         [](const ::testing::TestParamInfo<ViewCase>& info) {
+                           return std::string(RenderModeName(info.param.mode)) + "_" +
+                                  std::string(ProjectionName(info.param.projection)) + "_" +
+                                  std::string(StandardViewName(info.param.view));
+                         });
+
+RenderParams ColourParams(RenderMode mode) {
+  RenderParams params = DefaultRenderParams(3, volume::DataType::kUint16, mode);
+  params.channels[0].color = {1, 0.2, 0.1};
+  params.channels[0].gamma = 1.7;
+  params.channels[0].window = 30000;
+  params.channels[0].level = 40000;
+  params.channels[0].opacity_scale = 0.1;
+  params.channels[1].color = {0.1, 1, 0.3};
+  params.channels[1].gamma = 0.6;
+  params.channels[1].opacity_scale = 0.05;
+  std::array<volume::Rgba, kLutEntries> lut;
+  for (int i = 0; i < kLutEntries; ++i) {
+    lut[i] = {static_cast<uint8_t>(255 - i), static_cast<uint8_t>((i * 7) % 256),
+              static_cast<uint8_t>(i), static_cast<uint8_t>(i / 3)};
+  }
+  params.channels[2].lut = lut;
+  params.channels[2].opacity_scale = 0.3;
+  return params;
+}
+
+TEST(VolumeRendererTest, MultiChannelColoursLutGamma) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({24, 20, 16}, 3));
+  ASSERT_NE(rig, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      const Camera camera = Standard(*rig, StandardView::kIso, p, 40, 40);
+      const RenderParams params = ColourParams(mode);
+      const RenderImage gpu = Gpu(*rig, camera, params, Refine());
+      const ImageDiff d = CompareImages(gpu, Reference(*rig, camera, params));
+      EXPECT_LE(d.max_abs, kTol) << RenderModeName(mode) << " " << ProjectionName(p) << ": "
+                                 << Describe(d);
+    }
+  }
+}
+
+TEST(VolumeRendererTest, ClipPlanes) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({24, 24, 24}, 1));
+  ASSERT_NE(rig, nullptr);
+  const std::vector<ClipPlane> planes = {
+      {{1, 0, 0}, 15.3}, {{-0.3, 1, 0.2}, 12}, {{0, -1, -1}, -10}};
+  for (size_t count = 1; count <= 3; ++count) {
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+      RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+      params.channels[0].opacity_scale = 0.1;
+      params.clip_planes.assign(planes.begin(), planes.begin() + static_cast<long>(count));
+      for (StandardView view : {StandardView::kZ, StandardView::kIso}) {
+        const Camera camera = Standard(*rig, view, Projection::kOrthographic, 32, 32);
+        const RenderImage gpu = Gpu(*rig, camera, params, Refine());
+        const RenderImage ref = Reference(*rig, camera, params);
+        const ImageDiff d = CompareImages(gpu, ref);
+        EXPECT_LE(d.max_abs, kTol) << count << " planes, " << RenderModeName(mode) << ", "
+                                   << StandardViewName(view) << ": " << Describe(d);
+      }
+    }
+  }
+}
+
+TEST(VolumeRendererTest, PerChannelTransformAndAnisotropicSpacing) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec({24, 20, 16}, 2);
+  spec.spacing = {0.5, 0.5, 1.5};
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    params.channels[0].opacity_scale = 0.1;
+    params.channels[1].color = {0, 1, 0};
+    params.channels[1].opacity_scale = 0.1;
+    // Translation plus a slight scale: part of the channel's positions leave the box.
+    params.channels[1].transform =
+        Mat4::Translation({0.8, -0.6, 1.1}) * Mat4::Scale({1.03, 0.97, 1});
+    for (StandardView view : {StandardView::kZ, StandardView::kIso}) {
+      const Camera camera = Standard(*rig, view, Projection::kOrthographic, 40, 40);
+      const ImageDiff d =
+          CompareImages(Gpu(*rig, camera, params, Refine()), Reference(*rig, camera, params));
+      EXPECT_LE(d.max_abs, kTol) << RenderModeName(mode) << " " << StandardViewName(view) << ": "
+                                 << Describe(d);
+    }
+  }
+}
+
+TEST(VolumeRendererTest, DisabledChannelCostsNoSamples) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({24, 20, 16}, 3));
+  ASSERT_NE(rig, nullptr);
+  const Camera camera = Standard(*rig, StandardView::kIso, Projection::kOrthographic, 32, 32);
+  RenderParams all = ColourParams(RenderMode::kMip);
+  FrameStats all_stats;
+  Gpu(*rig, camera, all, Refine(), &all_stats);
+  RenderParams two = all;
+  two.channels[1].enabled = false;
+  FrameStats two_stats;
+  const RenderImage gpu = Gpu(*rig, camera, two, Refine(), &two_stats);
+  RenderStats ref_stats;
+  const RenderImage ref = Reference(*rig, camera, two, &ref_stats);
+  // MIP walks every segment: the samples are exactly the enabled channels' share.
+  EXPECT_EQ(two_stats.samples * 3, all_stats.samples * 2);
+  EXPECT_EQ(two_stats.samples, ref_stats.channel_samples[0] + ref_stats.channel_samples[2]);
+  EXPECT_EQ(ref_stats.channel_samples[1], 0u);
+  const ImageDiff d = CompareImages(gpu, ref);
+  EXPECT_LE(d.max_abs, kTol) << Describe(d);
+}
+
+TEST(VolumeRendererTest, FullFrameConvergesToRefinement) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({32, 32, 32}, 1, {8, 8, 8}));
+  ASSERT_NE(rig, nullptr);
+  const Camera camera = Standard(*rig, StandardView::kIso, Projection::kPerspective, 48, 48);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  params.channels[0].opacity_scale = 0.1;
+  FrameOptions full;
+  full.upload.max_bricks = 8;  // Several frames until everything is resident.
+  FrameStats stats;
+  Result<RenderImage> first = rig->renderer->RenderFullFrame(camera, params, full, &stats);
+  ASSERT_TRUE(first.ok()) << first.status().ToString();
+  EXPECT_TRUE(AllFinite(*first));
+  EXPECT_FALSE(stats.final);
+  EXPECT_GT(stats.requests, 0u);
+  // The coarse first frame already resembles the reference (same overall opacity).
+  const RenderImage ref = Reference(*rig, camera, params);
+  EXPECT_LT(CompareImages(*first, ref).max_abs, 0.5);
+  RenderImage last = *first;
+  int frames = 1;
+  while (!stats.final && frames < 200) {
+    Result<RenderImage> next = rig->renderer->RenderFullFrame(camera, params, full, &stats);
+    ASSERT_TRUE(next.ok()) << next.status().ToString();
+    EXPECT_TRUE(AllFinite(*next));
+    last = std::move(*next);
+    ++frames;
+  }
+  EXPECT_TRUE(stats.final);
+  EXPECT_GT(frames, 2);
+  const RenderImage refined = Gpu(*rig, camera, params, Refine());
+  EXPECT_LE(CompareImages(last, refined).max_abs, 1e-6);
+  EXPECT_LE(CompareImages(last, ref).max_abs, kTol) << Describe(CompareImages(last, ref));
+}
+
+// Full frame with nothing resident on a deep tree: the root is more than two levels above the
+// wanted leaves, so every sample uses its leaf's AVERAGE (fallback rule) — checked against block
+// means computed from the voxels.
+TEST(VolumeRendererTest, FullFrameFallbackUsesWantedAverages) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec({64, 64, 64}, 1, {8, 8, 8});
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->device->geometry().root_level(), 3);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 64, 64);
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  FrameOptions full;
+  full.upload.max_bricks = 1;
+  FrameStats stats;
+  Result<RenderImage> image = rig->renderer->RenderFullFrame(camera, params, full, &stats);
+  ASSERT_TRUE(image.ok()) << image.status().ToString();
+  // Per 8x8 column of blocks: the maximum over z of the block means.
+  for (int by = 0; by < 8; ++by) {
+    for (int bx = 0; bx < 8; ++bx) {
+      double best = 0;
+      for (int bz = 0; bz < 8; ++bz) {
+        double sum = 0;
+        for (int z = 0; z < 8; ++z)
+          for (int y = 0; y < 8; ++y)
+            for (int x = 0; x < 8; ++x) sum += spec.value(0, bx * 8 + x, by * 8 + y, bz * 8 + z);
+        best = std::max(best, sum / 512);
+      }
+      for (int y = 0; y < 8; ++y) {
+        for (int x = 0; x < 8; ++x) {
+          ASSERT_NEAR(image->Pixel(bx * 8 + x, by * 8 + y)[0], best / 65535, 1.0 / 65535 + 1e-6)
+              << bx << "," << by;
+        }
+      }
+    }
+  }
+  EXPECT_GE(stats.requests, 64u);
+}
+
+TEST(VolumeRendererTest, WorkingSetLargerThanBrickBuffer) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = NoiseSpec({32, 32, 32}, 1, {8, 8, 8});
+  auto roomy = MakeRig(spec);
+  ASSERT_NE(roomy, nullptr);
+  DeviceOctreeOptions tight;
+  tight.brick_buffer_bytes = kMinBrickSlots * 10 * 10 * 10 * 2;
+  auto small = MakeRig(spec, tight);
+  ASSERT_NE(small, nullptr);
+  ASSERT_EQ(small->device->slot_count(), kMinBrickSlots);
+  // Ten slots split over four allocations of at most three bricks: slots in every allocation.
+  DeviceOctreeOptions split;
+  split.brick_buffer_bytes = 10 * 10 * 10 * 10 * 2;
+  split.max_allocation_bytes = 3 * 10 * 10 * 10 * 2;
+  auto split_rig = MakeRig(spec, split);
+  ASSERT_NE(split_rig, nullptr);
+  ASSERT_EQ(split_rig->device->allocation_count(), 4);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    params.channels[0].opacity_scale = 0.05;
+    const Camera camera = Standard(*roomy, StandardView::kIso, Projection::kOrthographic, 40, 40);
+    FrameStats small_stats;
+    const RenderImage a = Gpu(*roomy, camera, params, Refine());
+    const RenderImage b = Gpu(*small, camera, params, Refine(), &small_stats);
+    EXPECT_TRUE(small_stats.final);
+    EXPECT_GT(small_stats.bricks_uploaded, 64u);  // Bricks were evicted and uploaded again.
+    EXPECT_LE(CompareImages(a, b).max_abs, 1e-6) << RenderModeName(mode);
+    const RenderImage c = Gpu(*split_rig, camera, params, Refine());
+    EXPECT_LE(CompareImages(a, c).max_abs, 1e-6) << RenderModeName(mode);
+  }
+}
+
+TEST(VolumeRendererTest, PerSampleLevelOfDetail) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = NoiseSpec({64, 64, 32}, 1, {8, 8, 8});
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  params.channels[0].opacity_scale = 0.05;
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 64, 64);
+  const RenderImage ref = Reference(*rig, camera, params);
+  FrameStats fine_stats;
+  const RenderImage fine = Gpu(*rig, camera, params, Refine(), &fine_stats);
+  EXPECT_LE(CompareImages(fine, ref).max_abs, kTol);
+
+  // lod_bias +1 on a fresh device octree: level 1, a quarter of the bricks requested.
+  auto coarse_rig = MakeRig(spec);
+  ASSERT_NE(coarse_rig, nullptr);
+  FrameOptions coarse = Refine();
+  coarse.lod_bias = 1;
+  FrameStats coarse_stats;
+  const RenderImage blurred = Gpu(*coarse_rig, camera, params, coarse, &coarse_stats);
+  EXPECT_LT(coarse_stats.bricks_uploaded * 4, fine_stats.bricks_uploaded * 2);
+  const ImageDiff coarse_diff = CompareImages(blurred, ref);
+  EXPECT_GT(coarse_diff.max_abs, kTol);  // Different data ...
+  EXPECT_LT(coarse_diff.max_abs, 0.25);  // ... of the same volume.
+  EXPECT_GT(coarse_diff.psnr, 20);
+
+  // A quarter of the pixels has the same footprint as bias +1.
+  auto small_rig = MakeRig(spec);
+  ASSERT_NE(small_rig, nullptr);
+  const Camera small = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 32, 32);
+  FrameStats small_stats;
+  Gpu(*small_rig, small, params, Refine(), &small_stats);
+  EXPECT_EQ(small_stats.bricks_uploaded, coarse_stats.bricks_uploaded);
+
+  // Bias -1 asks for level -1: clamped to 0, the very same image.
+  FrameOptions sharp = Refine();
+  sharp.lod_bias = -1;
+  const RenderImage same = Gpu(*rig, camera, params, sharp);
+  EXPECT_EQ(CompareImages(same, fine).max_abs, 0);
+}
+
+TEST(VolumeRendererTest, EmptySpaceSkippingChangesNothingButSamples) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {64, 48, 40};
+  spec.brick = {8, 8, 8};
+  // Two noisy blobs in empty space.
+  spec.value = [](int, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    const auto blob = [&](double cx, double cy, double cz, double r) {
+      return (x - cx) * (x - cx) + (y - cy) * (y - cy) + (z - cz) * (z - cz) < r * r;
+    };
+    if (blob(14, 12, 10, 6) || blob(45, 33, 28, 8)) {
+      return static_cast<uint16_t>(20000 + Hash(x, y, z, 0) % 40000);
+    }
+    return 0;
+  };
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+      params.channels[0].opacity_scale = 0.1;
+      const Camera camera = Standard(*rig, StandardView::kIso, p, 64, 64);
+      FrameOptions with = Refine();
+      FrameOptions without = Refine();
+      without.skip_empty_space = false;
+      FrameStats with_stats, without_stats;
+      const RenderImage a = Gpu(*rig, camera, params, with, &with_stats);
+      const RenderImage b = Gpu(*rig, camera, params, without, &without_stats);
+      EXPECT_EQ(a.rgba, b.rgba) << RenderModeName(mode) << " " << ProjectionName(p);
+      // About a quarter of the samples on this volume (measured 19018 vs 76960 ortho).
+      EXPECT_LT(with_stats.samples * 2, without_stats.samples)
+          << RenderModeName(mode) << " " << ProjectionName(p);
+      // Near the faces of a pruned (homogeneous, brickless) node the reference interpolates
+      // with the neighbouring voxels while the octree gives the node's average: a bounded
+      // difference on a few pixels, the same with and without skipping.
+      const ImageDiff d = CompareImages(a, Reference(*rig, camera, params));
+      EXPECT_LE(d.max_abs, 0.06) << RenderModeName(mode) << " " << ProjectionName(p) << ": "
+                                 << Describe(d);
+      EXPECT_GT(d.psnr, 50) << RenderModeName(mode) << " " << ProjectionName(p);
+    }
+  }
+}
+
+TEST(VolumeRendererTest, CancelAndInvalidParams) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({16, 16, 16}, 1));
+  ASSERT_NE(rig, nullptr);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 16, 16);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  std::atomic<bool> cancel{true};
+  Result<RenderImage> cancelled = rig->renderer->Render(camera, params, Refine(), nullptr, &cancel);
+  EXPECT_EQ(cancelled.status().code(), StatusCode::kCancelled);
+  params.step_voxels = 0;
+  EXPECT_EQ(rig->renderer->Render(camera, params, Refine()).status().code(),
+            StatusCode::kInvalidArgument);
+  EXPECT_EQ(rig->renderer->Render(camera, params, FrameOptions{}).status().code(),
+            StatusCode::kInvalidArgument);
+  // max_passes stops early: partial image, not final.
+  params.step_voxels = 1;
+  FrameOptions limited = Refine();
+  limited.max_passes = 1;
+  FrameStats stats;
+  Result<RenderImage> partial = rig->renderer->Render(camera, params, limited, &stats);
+  ASSERT_TRUE(partial.ok());
+  EXPECT_EQ(stats.passes, 1);
+  EXPECT_FALSE(stats.final) << stats.finished_fraction << " " << stats.samples << " "
+                            << stats.requests << " " << rig->device->resident_bricks();
+  EXPECT_TRUE(AllFinite(*partial));
+}
+
+}  // namespace
+}  // namespace octoscope::render
