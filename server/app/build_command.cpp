@@ -11,9 +11,9 @@
 #include <string>
 
 #include "app/commands.h"
+#include "app/octree_loading.h"
 #include "app/volume_options.h"
 #include "io/open_volume.h"
-#include "io/volume_stats.h"
 #include "octree/octree_builder.h"
 #include "octree/octree_cache.h"
 #include "protocol/build_report.h"
@@ -26,12 +26,7 @@ namespace {
 constexpr const char* kCommand = "octoscope build";
 
 int Fail(const std::string& input, const Status& status) {
-  const bool names_file =
-      status.message().find(std::filesystem::path(input).filename().string()) != std::string::npos;
-  std::string line = names_file ? status.ToString() : status.WithContext(input).ToString();
-  std::replace(line.begin(), line.end(), '\n', ' ');
-  std::fprintf(stderr, "%s: %s\n", kCommand, line.c_str());
-  return kExitBadInput;
+  return ReportBadInput(kCommand, input, status);
 }
 
 int Usage(const std::string& message, const Flags& flags) {
@@ -43,13 +38,6 @@ double PeakRssMb() {
   struct rusage usage;
   getrusage(RUSAGE_SELF, &usage);
   return static_cast<double>(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux.
-}
-
-// A quarter of the machine's memory, at most 4 GiB: a sensible budget on a shared lab machine.
-int64_t DefaultRamMb() {
-  const int64_t pages = sysconf(_SC_PHYS_PAGES), page_size = sysconf(_SC_PAGE_SIZE);
-  if (pages <= 0 || page_size <= 0) return 1024;
-  return std::clamp<int64_t>(pages * page_size / 4 / (1 << 20), 256, 4096);
 }
 
 Result<octree::Vec3> ParseBrick(const std::string& text) {
@@ -65,46 +53,6 @@ Result<octree::Vec3> ParseBrick(const std::string& text) {
     brick[a] = *v;
   }
   return brick;
-}
-
-// The value mapping a build needs: for 8/16-bit data the fixed maps, plus (when the threshold is
-// a fraction of the data's range, or the type is wider) one statistics pass over the data.
-Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold) {
-  const volume::VolumeInfo& info = source.info();
-  octree::ValueMapping mapping;
-  const bool narrow = volume::BytesPerSample(info.dtype) <= 2;
-  std::optional<io::VolumeStats> stats;
-  if (!narrow || threshold > 0) {
-    ProgressBar bar(stderr, "planes (value range)",
-                    static_cast<uint64_t>(info.size[2]) * info.channel_count(),
-                    static_cast<double>(source.SlabBytes(1)));
-    io::StatsOptions options;
-    options.progress = [&bar](uint64_t done, uint64_t) { bar.Update(done); };
-    auto computed = io::ComputeVolumeStats(source, options);
-    bar.Finish();
-    if (!computed.ok()) return computed.status();
-    stats = std::move(*computed);
-  }
-  for (int c = 0; c < info.channel_count(); ++c) {
-    volume::ValueMap map = volume::FixedValueMap(
-        info.dtype == volume::DataType::kUint8 || info.dtype == volume::DataType::kInt8 || narrow
-            ? info.dtype
-            : volume::DataType::kUint16);
-    if (!narrow) {
-      const io::ChannelStats& s = stats->channels[c];
-      const double lo = s.count ? s.min : 0, hi = s.count ? s.max : 0;
-      OCTO_ASSIGN_OR_RETURN(map, volume::ValueMapForRange(info.dtype, lo, hi));
-    }
-    uint32_t range = static_cast<uint32_t>(volume::TypeMax(map.stored_type));
-    if (stats && stats->channels[c].count > 0) {
-      // The channel's data range in stored units: what "5 % of the range" means.
-      range = static_cast<uint32_t>(map.ToStored(stats->channels[c].max) -
-                                    map.ToStored(stats->channels[c].min));
-    }
-    mapping.value_maps.push_back(map);
-    mapping.value_range.push_back(range);
-  }
-  return mapping;
 }
 
 // Test hook (tests/app/build_command_test.cpp): OCTOSCOPE_TEST_KILL_AFTER_PLANES=N makes the

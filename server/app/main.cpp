@@ -23,6 +23,8 @@ constexpr Command kCommands[] = {
      octoscope::app::RunBuild},
     {"demo", "write the built-in demo specimen (a synthetic fluorescent embryo) as OME-TIFF",
      octoscope::app::RunDemo},
+    {"render", "render one image of a scan or an octree cache (OpenCL ray casting) to PNG/JPEG",
+     octoscope::app::RunRender},
 };
 
 void PrintUsage(std::FILE* out) {

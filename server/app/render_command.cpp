@@ -1,0 +1,316 @@
+// `octoscope render INPUT|CACHE --out FILE.png|.jpg`: renders one image of a scan (octree built
+// in RAM or in --cache DIR) or of an octree cache directory with the OpenCL renderer.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "app/commands.h"
+#include "app/octree_loading.h"
+#include "app/volume_options.h"
+#include "encode/image_encoder.h"
+#include "protocol/render_json.h"
+#include "protocol/render_report.h"
+#include "render/camera.h"
+#include "render/device.h"
+#include "render/device_octree.h"
+#include "render/program_cache.h"
+#include "render/render_params.h"
+#include "render/volume_renderer.h"
+#include "util/file_reading.h"
+#include "util/strings.h"
+
+namespace octoscope::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr const char* kCommand = "octoscope render";
+// Full frames are repeated until one requests nothing, at most this many.
+constexpr int kMaxFullFrames = 64;
+
+int Usage(const std::string& message, const Flags& flags) {
+  std::fprintf(stderr, "%s: %s\n\n%s", kCommand, message.c_str(), flags.Help().c_str());
+  return kExitUsage;
+}
+
+int Fail(const std::string& input, const Status& status) {
+  return ReportBadInput(kCommand, input, status);
+}
+
+double MsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+// "WxH" with both in [1, kMaxImageSize].
+Result<std::pair<int, int>> ParseSize(const std::string& text) {
+  const size_t x = text.find_first_of("xX");
+  std::optional<int64_t> w, h;
+  if (x != std::string::npos) {
+    w = ParseInt64(std::string_view(text).substr(0, x));
+    h = ParseInt64(std::string_view(text).substr(x + 1));
+  }
+  if (!w || !h || *w < 1 || *h < 1 || *w > render::kMaxImageSize || *h > render::kMaxImageSize) {
+    return InvalidArgumentError("--size: expected WxH with each in 1.." +
+                                std::to_string(render::kMaxImageSize) + ", got '" +
+                                Printable(text) + "'");
+  }
+  return std::make_pair(static_cast<int>(*w), static_cast<int>(*h));
+}
+
+Status WriteBytes(const fs::path& path, const std::vector<uint8_t>& bytes) {
+  const fs::path tmp = path.string() + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    out.write(reinterpret_cast<const char*>(bytes.data()),
+              static_cast<std::streamsize>(bytes.size()));
+    out.close();
+    if (!out) {
+      std::error_code ec;
+      fs::remove(tmp, ec);
+      return IoError(path.string() + ": cannot write the image");
+    }
+  }
+  // A reader never sees a half-written image under the final name.
+  std::error_code ec;
+  fs::rename(tmp, path, ec);
+  if (ec) return IoError(path.string() + ": cannot write the image: " + ec.message());
+  return Status::Ok();
+}
+
+struct RenderOutcome {
+  render::RenderImage image;
+  render::FrameStats stats;
+};
+
+// Full frames until one requests nothing (everything it needs is resident) or `max_frames`.
+Result<RenderOutcome> RenderFullFrames(render::VolumeRenderer& renderer,
+                                       const render::Camera& camera,
+                                       const render::RenderParams& params,
+                                       const render::FrameOptions& options, int max_frames) {
+  RenderOutcome out;
+  for (int frame = 0; frame < max_frames; ++frame) {
+    render::FrameStats s;
+    OCTO_ASSIGN_OR_RETURN(out.image, renderer.RenderFullFrame(camera, params, options, &s));
+    out.stats.ms_kernel += s.ms_kernel;
+    out.stats.ms_upload += s.ms_upload;
+    out.stats.passes += s.passes > 0 ? s.passes : 1;
+    out.stats.samples += s.samples;
+    out.stats.requests += s.requests;
+    out.stats.bricks_uploaded += s.bricks_uploaded;
+    out.stats.finished_fraction = s.finished_fraction;
+    out.stats.final = s.requests == 0;
+    if (out.stats.final) break;
+  }
+  return out;
+}
+
+}  // namespace
+
+int RunRender(std::span<const std::string> args) {
+  const auto start = std::chrono::steady_clock::now();
+  Flags flags(
+      "octoscope render INPUT|CACHE_DIR --out FILE.png|FILE.jpg [options]",
+      "Renders one image of INPUT (any format of 'octoscope info'; its octree is built in RAM,\n"
+      "or in --cache DIR and reused from there) or of an octree cache directory, with the\n"
+      "OpenCL ray caster. Camera and parameter files: docs/render_json.md; fields of\n"
+      "--stats-json: docs/cli.md.");
+  flags.SetPositionals("INPUT|CACHE_DIR", 1, 1);
+  flags.AddValue("out", "FILE", "output image, .png (RGBA) or .jpg/.jpeg (RGB over black)");
+  flags.AddValue("size", "WxH", "image size in pixels", "512x512");
+  flags.AddValue("mode", "dvr|mip|minip", "compositing (overrides the parameter file)", "dvr");
+  flags.AddValue("projection", "ortho|perspective",
+                 "projection of a standard view (a camera file may set its own)", "ortho");
+  flags.AddValue("view", "x|y|z|iso|CAMERA.json", "standard view fitted to the volume, or a file",
+                 "z");
+  flags.AddSwitch("refine", "refinement ray casting until the image is final (else full frames)");
+  flags.AddValue("params", "PARAMS.json", "render parameters", "grey full-range channels");
+  flags.AddSwitch("stats-json", "print one JSON line of statistics on stdout");
+  flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
+  flags.AddValue("brick-buffer-mb", "N", "device brick buffer in MiB", "512");
+  flags.AddValue("lod-bias", "F", "level-of-detail bias (+1: half resolution)", "0");
+  flags.AddValue("step", "F", "sampling step in voxels (overrides the parameter file)", "1");
+  flags.AddValue("budget-ms", "N", "upload budget per frame / pass in ms", "150");
+  flags.AddValue("max-passes", "N",
+                 "stop after N refinement passes or full frames (0: until final)", "0");
+  flags.AddValue("quality", "N", "JPEG quality 1..100", "90");
+  flags.AddValue("cache", "DIR", "build the octree into (or reuse it from) this cache directory");
+  flags.AddValue("ram-mb", "N", "RAM budget in MiB for building and paging the octree",
+                 "a quarter of RAM, <= 4096");
+  AddVolumeFlags(flags);
+  if (Status s = flags.Parse(args); !s.ok()) return Usage(s.message(), flags);
+  if (flags.help_requested()) {
+    std::printf("%s", flags.Help().c_str());
+    return kExitOk;
+  }
+
+  // 1. Flags (usage errors, exit 64) before touching any file.
+  const auto out_path = flags.Get("out");
+  if (!out_path || out_path->empty()) return Usage("--out FILE is required", flags);
+  auto format = encode::ImageFormatFromPath(*out_path);
+  if (!format.ok()) return Usage(format.status().message(), flags);
+  auto size = ParseSize(flags.Get("size").value_or("512x512"));
+  if (!size.ok()) return Usage(size.status().message(), flags);
+  const auto [width, height] = *size;
+  std::optional<render::RenderMode> mode_flag;
+  if (auto m = flags.Get("mode")) {
+    mode_flag = render::RenderModeFromName(*m);
+    if (!mode_flag) return Usage("--mode must be dvr, mip or minip", flags);
+  }
+  const auto projection = render::ProjectionFromName(flags.Get("projection").value_or("ortho"));
+  if (!projection) return Usage("--projection must be ortho or perspective", flags);
+  const std::string view = flags.Get("view").value_or("z");
+  const auto standard_view = render::StandardViewFromName(view);
+  auto brick_buffer_mb = flags.GetInt("brick-buffer-mb", 512, 1, int64_t{1} << 20);
+  if (!brick_buffer_mb.ok()) return Usage(brick_buffer_mb.status().message(), flags);
+  auto lod_bias = flags.GetDouble("lod-bias", 0);
+  if (!lod_bias.ok()) return Usage(lod_bias.status().message(), flags);
+  if (!(*lod_bias >= -8 && *lod_bias <= 16)) return Usage("--lod-bias must be in [-8, 16]", flags);
+  std::optional<double> step;
+  if (flags.Has("step")) {
+    auto s = flags.GetDouble("step", 1);
+    if (!s.ok()) return Usage(s.status().message(), flags);
+    if (!(*s >= render::kMinStepVoxels && *s <= render::kMaxStepVoxels)) {
+      return Usage("--step must be in [1/64, 64] voxels", flags);
+    }
+    step = *s;
+  }
+  auto budget_ms = flags.GetInt("budget-ms", 150, 1, 3'600'000);
+  if (!budget_ms.ok()) return Usage(budget_ms.status().message(), flags);
+  auto max_passes = flags.GetInt("max-passes", 0, 0, 1'000'000);
+  if (!max_passes.ok()) return Usage(max_passes.status().message(), flags);
+  auto quality = flags.GetInt("quality", 90, 1, 100);
+  if (!quality.ok()) return Usage(quality.status().message(), flags);
+  auto ram_mb = flags.GetInt("ram-mb", DefaultRamMb(), 16, int64_t{1} << 22);
+  if (!ram_mb.ok()) return Usage(ram_mb.status().message(), flags);
+  auto open_options = VolumeOptionsFromFlags(flags);
+  if (!open_options.ok()) return Usage(open_options.status().message(), flags);
+  const bool refine = flags.Has("refine");
+  const std::string& input = flags.positionals()[0];
+
+  // 2. The JSON files are read (not yet parsed: the defaults depend on the volume) up front, so a
+  //    missing file fails before a long build.
+  std::optional<std::string> params_text, camera_text;
+  if (auto path = flags.Get("params")) {
+    auto text = ReadSmallFile(*path, protocol::kMaxRenderJsonBytes);
+    if (!text.ok()) return Fail(*path, text.status());
+    params_text = std::move(*text);
+  }
+  if (!standard_view) {
+    auto text = ReadSmallFile(view, protocol::kMaxRenderJsonBytes);
+    if (!text.ok()) return Fail(view, text.status());
+    camera_text = std::move(*text);
+  }
+
+  // 3. The octree (opened, reused or built).
+  OctreeLoadOptions load;
+  load.open = *open_options;
+  load.cache_dir = flags.Get("cache").value_or("");
+  load.ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
+  auto loaded = LoadOctree(input, load);
+  if (!loaded.ok()) return Fail(input, loaded.status());
+  LoadedOctree& tree = **loaded;
+  const volume::VolumeInfo& info = tree.info;
+
+  // 4. Parameters and camera for this volume.
+  const volume::DataType stored_type =
+      tree.value_maps.empty() ? volume::StoredTypeFor(info.dtype) : tree.value_maps[0].stored_type;
+  render::RenderParams params = render::DefaultRenderParams(
+      info.channel_count(), stored_type, mode_flag.value_or(render::RenderMode::kDvr));
+  if (params_text) {
+    auto parsed = protocol::ParseRenderParamsJson(*params_text, params);
+    if (!parsed.ok()) return Fail(*flags.Get("params"), parsed.status());
+    params = std::move(*parsed);
+    if (flags.Has("mode")) params.mode = *mode_flag;  // The command line wins.
+  }
+  if (step) params.step_voxels = *step;
+  const render::Vec3 spacing = render::PhysicalSpacing(info);
+  Result<render::Camera> camera =
+      standard_view
+          ? render::Camera::Standard(*standard_view, *projection,
+                                     render::PhysicalBounds(info.size, spacing), width, height)
+          : protocol::ParseCameraJson(*camera_text, *projection, width, height);
+  if (!camera.ok()) return Fail(standard_view ? input : view, camera.status());
+
+  // 5. The device, the octree mirrored on it, the renderer.
+  auto device = render::ChooseDevice(flags.Get("device").value_or("auto"));
+  if (!device.ok()) {
+    std::fprintf(stderr, "%s: no OpenCL device to render on: %s\n", kCommand,
+                 device.status().message().c_str());
+    return kExitBadInput;
+  }
+  auto context = render::ComputeContext::Create(*device);
+  if (!context.ok()) return Fail(device->name, context.status());
+  render::ProgramCache programs(&*context);
+  render::DeviceOctreeOptions device_options;
+  device_options.brick_buffer_bytes = static_cast<uint64_t>(*brick_buffer_mb) << 20;
+  auto device_octree = render::DeviceOctree::Create(&*context, &tree.octree(), device_options);
+  if (!device_octree.ok()) return Fail(device->name, device_octree.status());
+  auto renderer =
+      render::VolumeRenderer::Create(&*context, &programs, device_octree->get(), spacing);
+  if (!renderer.ok()) return Fail(device->name, renderer.status());
+  const double ms_load = MsSince(start);
+
+  // 6. Render: full frames until nothing more is requested, or one refinement to the end.
+  render::FrameOptions options;
+  options.mode = refine ? render::FrameMode::kRefine : render::FrameMode::kFullFrame;
+  options.lod_bias = *lod_bias;
+  options.upload.max_ms = static_cast<double>(*budget_ms);
+  options.max_passes = static_cast<int>(*max_passes);
+  const auto render_start = std::chrono::steady_clock::now();
+  Result<RenderOutcome> outcome = RenderOutcome{};
+  if (refine) {
+    render::FrameStats stats;
+    auto image = (*renderer)->Render(*camera, params, options, &stats);
+    if (image.ok()) {
+      outcome = RenderOutcome{std::move(*image), std::move(stats)};
+    } else {
+      outcome = image.status();
+    }
+  } else {
+    outcome = RenderFullFrames(**renderer, *camera, params, options,
+                               *max_passes > 0 ? static_cast<int>(*max_passes) : kMaxFullFrames);
+  }
+  if (!outcome.ok()) return Fail(input, outcome.status());
+  const double ms_total = MsSince(render_start);
+
+  // 7. Encode and write.
+  const render::RenderImage& image = outcome->image;
+  const encode::Rgba8Image pixels = encode::ToRgba8(image.rgba.data(), image.width, image.height);
+  auto bytes = *format == encode::ImageFormat::kPng
+                   ? encode::EncodePng(pixels)
+                   : encode::EncodeJpeg(pixels, static_cast<int>(*quality));
+  if (!bytes.ok()) return Fail(*out_path, bytes.status());
+  if (Status s = WriteBytes(*out_path, *bytes); !s.ok()) return Fail(*out_path, s);
+
+  if (flags.Has("stats-json")) {
+    const render::FrameStats& s = outcome->stats;
+    protocol::RenderReport report;
+    report.ms_total = ms_total;
+    report.ms_kernel = s.ms_kernel;
+    report.ms_upload = s.ms_upload;
+    report.ms_load = ms_load;
+    report.passes = s.passes;
+    report.bricks_uploaded = s.bricks_uploaded;
+    report.samples = s.samples;
+    report.requests = s.requests;
+    report.finished_fraction = s.finished_fraction;
+    report.final = s.final;
+    report.refine = refine;
+    report.width = width;
+    report.height = height;
+    report.mode = std::string(render::RenderModeName(params.mode));
+    report.projection = std::string(render::ProjectionName(camera->projection()));
+    report.device = device->ToString();
+    report.octree = tree.source;
+    report.out = *out_path;
+    std::printf("%s\n", protocol::RenderReportJson(report).c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace octoscope::app

@@ -1,0 +1,59 @@
+// Image encoding: turns a rendered RGBA float image into 8-bit pixels and those into PNG or JPEG
+// files (bytes in memory), for `octoscope render` and the browser server.
+//
+// Pixel convention: the renderer's pixels are premultiplied RGBA floats in [0, 1]. Rgba8Image
+// keeps the colour premultiplied, i.e. the image composited over black (what a viewer shows on a
+// black background, the usual microscopy display), and the alpha as is; each component is
+// round(clamp(v, 0, 1) * 255) (NaN counts as 0). PNG stores all four components (colour type 6,
+// 8 bits); JPEG has no alpha and stores the RGB components (composited over black).
+//
+// Invariant of a valid Rgba8Image: 1 <= width, height <= kMaxEncodeSize and
+// pixels.size() == width * height * 4 (row 0 at the top, x fastest, R G B A per pixel).
+//
+// Thread safety: pure functions (libturbojpeg handles are created per call); reentrant.
+#ifndef OCTOSCOPE_ENCODE_IMAGE_ENCODER_H_
+#define OCTOSCOPE_ENCODE_IMAGE_ENCODER_H_
+
+#include <cstdint>
+#include <string_view>
+#include <vector>
+
+#include "util/result.h"
+#include "util/status.h"
+
+namespace octoscope::encode {
+
+// Largest width or height an encoder accepts (the renderer's limit, render/camera.h).
+inline constexpr int kMaxEncodeSize = 16384;
+
+struct Rgba8Image {
+  int width = 0;
+  int height = 0;
+  std::vector<uint8_t> pixels;  // width * height * 4 bytes.
+};
+
+// Checks the invariant above; kInvalidArgument naming what is wrong.
+Status ValidateImage(const Rgba8Image& image);
+
+// Converts `width` x `height` premultiplied RGBA float pixels (4 floats each) as described above.
+// REQUIRES: width, height >= 0; rgba_premultiplied points at width * height * 4 floats.
+Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height);
+
+// A PNG file (RGBA, 8 bits per sample, non-interlaced; per row the filter among the five PNG
+// filters with the smallest sum of absolute residuals; zlib-compressed IDAT chunks of at most
+// 1 MiB each). Errors when the image is invalid.
+Result<std::vector<uint8_t>> EncodePng(const Rgba8Image& image);
+
+// A baseline JPEG file of the RGB components (4:4:4, so thin bright structures keep their
+// colour). `quality` in [1, 100]. Errors when the image or the quality is invalid or libturbojpeg
+// fails.
+Result<std::vector<uint8_t>> EncodeJpeg(const Rgba8Image& image, int quality);
+
+enum class ImageFormat { kPng, kJpeg };
+// The format a file name asks for by its extension (".png"; ".jpg" or ".jpeg"; any case);
+// kInvalidArgument otherwise.
+Result<ImageFormat> ImageFormatFromPath(std::string_view path);
+
+}  // namespace octoscope::encode
+
+#endif  // OCTOSCOPE_ENCODE_IMAGE_ENCODER_H_

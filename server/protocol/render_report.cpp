@@ -1,0 +1,31 @@
+#include "protocol/render_report.h"
+
+#include <nlohmann/json.hpp>
+
+namespace octoscope::protocol {
+
+std::string RenderReportJson(const RenderReport& r) {
+  nlohmann::ordered_json j;
+  j["ms_total"] = r.ms_total;
+  j["passes"] = r.passes;
+  j["bricks_uploaded"] = r.bricks_uploaded;
+  j["samples"] = r.samples;
+  j["final"] = r.final;
+  j["width"] = r.width;
+  j["height"] = r.height;
+  j["mode"] = r.mode;
+  j["device"] = r.device;
+  j["projection"] = r.projection;
+  j["refine"] = r.refine;
+  j["ms_kernel"] = r.ms_kernel;
+  j["ms_upload"] = r.ms_upload;
+  j["ms_load"] = r.ms_load;
+  j["requests"] = r.requests;
+  j["finished_fraction"] = r.finished_fraction;
+  j["octree"] = r.octree;
+  j["out"] = r.out;
+  // Device names may hold bytes that are not UTF-8: replace rather than throw.
+  return j.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace);
+}
+
+}  // namespace octoscope::protocol

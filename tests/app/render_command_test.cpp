@@ -1,0 +1,366 @@
+// End-to-end tests of `octoscope render` through the real binary: the MIP contract (an
+// orthographic z view at the volume's x × y size shows each voxel column's maximum through the
+// channel's window, within 1/255), computed here independently from the voxels written; PNG and
+// JPEG output decoded here; --stats-json; exit statuses; cache directory reuse.
+#include <gtest/gtest.h>
+#include <turbojpeg.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "app/run_octoscope.h"
+#include "encode/png_test_decoder.h"
+#include "io/memory_volume.h"
+#include "io/ome_tiff_writer.h"
+#include "io/tiff_fixture.h"
+#include "render/device.h"
+
+namespace octoscope::app {
+namespace {
+
+using octoscope::testing::DecodedPng;
+using octoscope::testing::DecodeTestPng;
+
+struct TestVolume {
+  std::array<int64_t, 3> size;
+  volume::DataType dtype;
+  std::vector<std::vector<uint16_t>> voxels;  // Per channel, x fastest.
+
+  uint16_t At(int c, int64_t x, int64_t y, int64_t z) const {
+    return voxels[c][static_cast<size_t>((z * size[1] + y) * size[0] + x)];
+  }
+  // The maximum along z of channel c's column (x, y).
+  uint16_t ColumnMax(int c, int64_t x, int64_t y) const {
+    uint16_t m = 0;
+    for (int64_t z = 0; z < size[2]; ++z) m = std::max(m, At(c, x, y, z));
+    return m;
+  }
+};
+
+// Writes a random volume as an OME-TIFF (1 µm isotropic spacing) and returns its voxels.
+TestVolume WriteRandomOmeTiff(const fs::path& path, std::array<int64_t, 3> size, int channels,
+                              volume::DataType dtype, uint32_t seed) {
+  TestVolume v{size, dtype, {}};
+  volume::VolumeInfo info;
+  info.format = "memory";
+  info.size = size;
+  info.dtype = dtype;
+  info.spacing_um = {1.0, 1.0, 1.0};
+  for (int c = 0; c < channels; ++c) info.channels.push_back({"ch" + std::to_string(c), {}});
+  auto memory = io::MemoryVolume::Create(info);
+  EXPECT_TRUE(memory.ok());
+  std::mt19937 rng(seed);
+  const uint32_t max = dtype == volume::DataType::kUint8 ? 255 : 65535;
+  for (int c = 0; c < channels; ++c) {
+    std::vector<uint16_t> values;
+    for (int64_t z = 0; z < size[2]; ++z) {
+      for (int64_t y = 0; y < size[1]; ++y) {
+        for (int64_t x = 0; x < size[0]; ++x) {
+          // Skewed low so column maxima spread over the range instead of all sitting near max.
+          const double u = std::uniform_real_distribution<double>(0, 1)(rng);
+          const auto value = static_cast<uint16_t>(std::lround(std::pow(u, 6) * max));
+          values.push_back(value);
+          if (dtype == volume::DataType::kUint8) {
+            (*memory)->Set<uint8_t>(c, x, y, z, static_cast<uint8_t>(value));
+          } else {
+            (*memory)->Set<uint16_t>(c, x, y, z, value);
+          }
+        }
+      }
+    }
+    v.voxels.push_back(std::move(values));
+  }
+  io::OmeTiffWriteOptions options;
+  options.compression = io::TiffCompression::kNone;
+  EXPECT_TRUE(io::WriteOmeTiff(**memory, path, options).ok());
+  return v;
+}
+
+std::string WriteText(const fs::path& path, const std::string& text) {
+  testing::WriteAll(path, std::vector<uint8_t>(text.begin(), text.end()));
+  return Quote(path);
+}
+
+class RenderCommandTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new fs::path(testing::MakeTempDir("render"));
+    // 80 voxels along x: two levels with the default 64^3 bricks.
+    two_channel_ = new TestVolume(
+        WriteRandomOmeTiff(*dir_ / "two.ome.tif", {80, 40, 24}, 2, volume::DataType::kUint16, 7));
+    uint8_ = new TestVolume(
+        WriteRandomOmeTiff(*dir_ / "bytes.ome.tif", {72, 24, 16}, 1, volume::DataType::kUint8, 8));
+    // Fits one brick: the octree is a single root node of level 0.
+    single_ = new TestVolume(WriteRandomOmeTiff(*dir_ / "single.ome.tif", {48, 40, 24}, 2,
+                                                volume::DataType::kUint16, 9));
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(*dir_);
+    delete dir_;
+    delete two_channel_;
+    delete uint8_;
+    delete single_;
+  }
+  void SetUp() override {
+    auto device = render::ChooseDevice("");
+    if (!device.ok()) GTEST_SKIP() << "no OpenCL device: " << device.status().ToString();
+  }
+
+  static RunResult Render(const fs::path& input, const fs::path& out, const std::string& extra) {
+    return RunOctoscope("render " + Quote(input) + " --out " + Quote(out) + " " + extra);
+  }
+
+  // Checks the contract pixel by pixel: grey = clamp(sum over enabled channels of
+  // column max / type max), alpha opaque, within 1/255.
+  static void ExpectMipContract(const DecodedPng& png, const TestVolume& v,
+                                const std::vector<int>& channels) {
+    ASSERT_TRUE(png.ok) << png.error;
+    ASSERT_EQ(png.width, v.size[0]);
+    ASSERT_EQ(png.height, v.size[1]);
+    const double type_max = v.dtype == volume::DataType::kUint8 ? 255 : 65535;
+    int bad = 0;
+    int distinct_levels = 0;
+    std::vector<bool> seen(256, false);
+    for (int y = 0; y < png.height; ++y) {
+      for (int x = 0; x < png.width; ++x) {
+        double t = 0;
+        for (int c : channels) t += v.ColumnMax(c, x, y) / type_max;
+        const double expected = std::min(t, 1.0) * 255;
+        for (int k = 0; k < 3; ++k) {
+          if (std::abs(png.At(x, y, k) - expected) > 1.0 && ++bad <= 5) {
+            ADD_FAILURE() << "pixel (" << x << ", " << y << ") component " << k << ": "
+                          << png.At(x, y, k) << ", expected " << expected;
+          }
+        }
+        EXPECT_EQ(png.At(x, y, 3), 255);
+        if (!seen[png.At(x, y, 0)]) ++distinct_levels;
+        seen[png.At(x, y, 0)] = true;
+      }
+    }
+    EXPECT_EQ(bad, 0);
+    EXPECT_GT(distinct_levels, 20);  // The data really spreads over the grey levels.
+  }
+
+  static fs::path* dir_;
+  static TestVolume* two_channel_;
+  static TestVolume* uint8_;
+  static TestVolume* single_;
+};
+
+fs::path* RenderCommandTest::dir_ = nullptr;
+TestVolume* RenderCommandTest::two_channel_ = nullptr;
+TestVolume* RenderCommandTest::uint8_ = nullptr;
+TestVolume* RenderCommandTest::single_ = nullptr;
+
+const char* kContractFlags = "--projection ortho --view z --mode mip --refine";
+
+TEST_F(RenderCommandTest, MipContractOneChannelOfTwo) {
+  const std::string params =
+      WriteText(*dir_ / "ch0.json", R"({"channels": [{}, {"enabled": false}]})");
+  const fs::path out = *dir_ / "ch0.png";
+  RunResult r = Render(*dir_ / "two.ome.tif", out,
+                       std::string(kContractFlags) + " --size 80x40 --params " + params);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *two_channel_, {0});
+}
+
+TEST_F(RenderCommandTest, MipContractTwoChannelsAddClamped) {
+  const fs::path out = *dir_ / "both.png";
+  RunResult r = Render(*dir_ / "two.ome.tif", out, std::string(kContractFlags) + " --size 80x40");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *two_channel_, {0, 1});
+}
+
+TEST_F(RenderCommandTest, MipContractSingleBrickVolume) {
+  // The whole octree is one level-0 root with a brick: it must be requested and sampled too.
+  const fs::path out = *dir_ / "single.png";
+  RunResult r =
+      Render(*dir_ / "single.ome.tif", out, std::string(kContractFlags) + " --size 48x40");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *single_, {0, 1});
+}
+
+TEST_F(RenderCommandTest, MipContractUint8WithStatsJson) {
+  const fs::path out = *dir_ / "bytes.png";
+  RunResult r = Render(*dir_ / "bytes.ome.tif", out,
+                       std::string(kContractFlags) + " --size 72x24 --stats-json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *uint8_, {0});
+  const auto j = nlohmann::json::parse(r.out);
+  for (const char* key : {"ms_total", "passes", "bricks_uploaded", "samples", "final", "width",
+                          "height", "mode", "device"}) {
+    EXPECT_TRUE(j.contains(key)) << key;
+  }
+  EXPECT_EQ(j["final"], true);
+  EXPECT_GE(j["passes"].get<int>(), 1);
+  EXPECT_GE(j["bricks_uploaded"].get<int>(), 1);
+  // At least one sample per pixel and z plane (the rays cross all 16 planes).
+  EXPECT_GE(j["samples"].get<uint64_t>(), uint64_t{72} * 24 * 16);
+  EXPECT_EQ(j["width"], 72);
+  EXPECT_EQ(j["height"], 24);
+  EXPECT_EQ(j["mode"], "mip");
+  EXPECT_FALSE(j["device"].get<std::string>().empty());
+  EXPECT_GE(j["ms_total"].get<double>(), 0);
+}
+
+TEST_F(RenderCommandTest, FullFramesJpegAndStandardViews) {
+  // Without --refine: full frames until nothing is requested; JPEG output.
+  const fs::path out = *dir_ / "iso.jpg";
+  RunResult r = Render(*dir_ / "two.ome.tif", out,
+                       "--view iso --projection perspective --mode dvr --size 40x30 --stats-json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_GE(j["passes"].get<int>(), 1);
+  EXPECT_EQ(j["final"], true);  // A tiny volume: everything fits, a frame ends requesting nothing.
+  EXPECT_EQ(j["mode"], "dvr");
+  const std::vector<uint8_t> jpeg = testing::ReadAll(out);
+  tjhandle tj = tjInitDecompress();
+  int w = 0, h = 0, subsampling = 0, colourspace = 0;
+  ASSERT_EQ(tjDecompressHeader3(tj, jpeg.data(), jpeg.size(), &w, &h, &subsampling, &colourspace),
+            0);
+  EXPECT_EQ(w, 40);
+  EXPECT_EQ(h, 30);
+  std::vector<uint8_t> rgb(static_cast<size_t>(w) * h * 3);
+  EXPECT_EQ(tjDecompress2(tj, jpeg.data(), jpeg.size(), rgb.data(), w, 0, h, TJPF_RGB, 0), 0);
+  tjDestroy(tj);
+  // The volume covers the image centre: something non-black is there.
+  EXPECT_GT(rgb[(static_cast<size_t>(h / 2) * w + w / 2) * 3], 0);
+
+  // The same MIP through JPEG stays within JPEG tolerance of the contract (grey, full range).
+  const fs::path mip = *dir_ / "mip.jpg";
+  ASSERT_EQ(Render(*dir_ / "two.ome.tif", mip,
+                   std::string(kContractFlags) + " --size 80x40 --quality 100")
+                .exit_code,
+            0);
+  const std::vector<uint8_t> mip_jpeg = testing::ReadAll(mip);
+  tj = tjInitDecompress();
+  std::vector<uint8_t> mip_rgb(80 * 40 * 3);
+  ASSERT_EQ(
+      tjDecompress2(tj, mip_jpeg.data(), mip_jpeg.size(), mip_rgb.data(), 80, 0, 40, TJPF_RGB, 0),
+      0);
+  tjDestroy(tj);
+  double sum_abs = 0;
+  for (int y = 0; y < 40; ++y) {
+    for (int x = 0; x < 80; ++x) {
+      const double t =
+          (two_channel_->ColumnMax(0, x, y) + two_channel_->ColumnMax(1, x, y)) / 65535.0;
+      sum_abs += std::abs(mip_rgb[(y * 80 + x) * 3] - std::min(t, 1.0) * 255);
+    }
+  }
+  EXPECT_LT(sum_abs / (80 * 40), 4.0);
+
+  // The other standard views and a camera file render too.
+  for (const char* view : {"x", "y"}) {
+    RunResult v = Render(*dir_ / "two.ome.tif", *dir_ / "v.png",
+                         std::string("--view ") + view + " --size 24x24 --mode minip");
+    EXPECT_EQ(v.exit_code, 0) << view << v.err;
+  }
+  const std::string camera =
+      WriteText(*dir_ / "camera.json",
+                R"({"projection": "perspective", "position": [40, 20, -80], "target": [40, 20, 12],
+          "up": [0, -1, 0], "fov_y_degrees": 35})");
+  RunResult c =
+      Render(*dir_ / "two.ome.tif", *dir_ / "c.png", "--view " + camera + " --size 32x32");
+  EXPECT_EQ(c.exit_code, 0) << c.err;
+  EXPECT_TRUE(DecodeTestPng(testing::ReadAll(*dir_ / "c.png")).ok);
+}
+
+TEST_F(RenderCommandTest, BadUsageIs64) {
+  const fs::path in = *dir_ / "two.ome.tif";
+  for (const std::string extra :
+       {"--size 0x5", "--size 48", "--size 80x40x3", "--mode xray", "--projection fish",
+        "--bogus-flag", "--out-missing", "--lod-bias abc", "--budget-ms 0", "--step 100"}) {
+    RunResult r = Render(in, *dir_ / "bad.png", extra);
+    EXPECT_EQ(r.exit_code, 64) << extra << ": " << r.err;
+  }
+  EXPECT_EQ(RunOctoscope("render " + Quote(in)).exit_code, 64);  // No --out.
+  EXPECT_EQ(Render(in, *dir_ / "bad.tif", "").exit_code, 64);    // Unknown image format.
+  EXPECT_EQ(RunOctoscope("render --out x.png").exit_code, 64);   // No INPUT.
+  EXPECT_FALSE(fs::exists(*dir_ / "bad.png"));
+}
+
+TEST_F(RenderCommandTest, BadInputIs2WithAMessageNamingTheProblem) {
+  const fs::path in = *dir_ / "two.ome.tif";
+  // A parameter file with a wrong type names the field.
+  const std::string bad_params =
+      WriteText(*dir_ / "bad.json", R"({"channels": [{"window": "wide"}, {}]})");
+  RunResult r = Render(in, *dir_ / "p.png", "--params " + bad_params);
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("channels[0].window"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("bad.json"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  // Not JSON at all; a channel count that does not match the volume.
+  r = Render(in, *dir_ / "p.png", "--params " + WriteText(*dir_ / "junk.json", "{\"mode\": mip"));
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  r = Render(in, *dir_ / "p.png",
+             "--params " + WriteText(*dir_ / "one.json", R"({"channels": [{}]})"));
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("channels"), std::string::npos) << r.err;
+  // Missing input, missing parameter file, missing camera file.
+  r = Render(*dir_ / "nope.ome.tif", *dir_ / "p.png", "");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("nope.ome.tif"), std::string::npos) << r.err;
+  r = Render(in, *dir_ / "p.png", "--params " + Quote(*dir_ / "absent.json"));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("absent.json"), std::string::npos) << r.err;
+  r = Render(in, *dir_ / "p.png", "--view " + Quote(*dir_ / "nocam.json"));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("nocam.json"), std::string::npos) << r.err;
+  // A camera file naming a bad field.
+  r = Render(
+      in, *dir_ / "p.png",
+      "--view " + WriteText(*dir_ / "cam.json", R"({"position": [0, 0], "target": [1, 2, 3]})"));
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("position"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(*dir_ / "p.png"));
+}
+
+TEST_F(RenderCommandTest, CacheDirectoryIsBuiltOnceThenReused) {
+  const fs::path cache = *dir_ / "cache";
+  const std::string flags =
+      std::string(kContractFlags) + " --size 80x40 --stats-json --cache " + Quote(cache);
+  RunResult first = Render(*dir_ / "two.ome.tif", *dir_ / "first.png", flags);
+  ASSERT_EQ(first.exit_code, 0) << first.err;
+  EXPECT_EQ(nlohmann::json::parse(first.out)["octree"], "built-cache");
+  ASSERT_TRUE(fs::exists(cache / "MANIFEST"));
+  const auto pool_time = fs::last_write_time(cache / "octree.pool");
+
+  RunResult second = Render(*dir_ / "two.ome.tif", *dir_ / "second.png", flags);
+  ASSERT_EQ(second.exit_code, 0) << second.err;
+  EXPECT_EQ(nlohmann::json::parse(second.out)["octree"], "cache");
+  EXPECT_EQ(fs::last_write_time(cache / "octree.pool"), pool_time) << "the cache was rewritten";
+  EXPECT_EQ(testing::ReadAll(*dir_ / "first.png"), testing::ReadAll(*dir_ / "second.png"));
+
+  // The cache directory itself as INPUT (no scan needed) renders the same image.
+  RunResult direct = Render(cache, *dir_ / "direct.png",
+                            std::string(kContractFlags) + " --size 80x40 --stats-json");
+  ASSERT_EQ(direct.exit_code, 0) << direct.err;
+  EXPECT_EQ(nlohmann::json::parse(direct.out)["octree"], "cache");
+  EXPECT_EQ(testing::ReadAll(*dir_ / "first.png"), testing::ReadAll(*dir_ / "direct.png"));
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(*dir_ / "direct.png")), *two_channel_, {0, 1});
+}
+
+TEST_F(RenderCommandTest, InMemoryBuildRefusedBeyondTheRamBudget) {
+  // A 1 GiB raw scan (a sparse file: nothing is read before the refusal) cannot be built in 64 MiB
+  // of RAM; the message asks for a cache directory.
+  const fs::path raw = *dir_ / "big.raw";
+  { std::ofstream(raw).put(0); }
+  fs::resize_file(raw, uint64_t{1024} * 1024 * 1024);
+  WriteText(*dir_ / "big.raw.json",
+            R"({"size": [1024, 1024, 1024], "channels": 1, "dtype": "uint8"})");
+  RunResult r = Render(raw, *dir_ / "ram.png", "--ram-mb 64 --size 8x8");
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("--cache"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(*dir_ / "ram.png"));
+  fs::remove(raw);
+}
+
+}  // namespace
+}  // namespace octoscope::app
