@@ -25,6 +25,8 @@ constexpr Command kCommands[] = {
      octoscope::app::RunDemo},
     {"render", "render one image of a scan or an octree cache (OpenCL ray casting) to PNG/JPEG",
      octoscope::app::RunRender},
+    {"bench", "benchmarks: 'bench render' measures speed against error of the renderer",
+     octoscope::app::RunBench},
 };
 
 void PrintUsage(std::FILE* out) {

@@ -1,0 +1,1018 @@
+// `octoscope bench render`: speed against error of the OpenCL renderer (docs/benchmarks.md,
+// "Rendering"). Renders fixed views of a volume over a sweep of settings, compares every image
+// with the double-precision CPU reference renderer, and measures the kernels against the
+// hand-written multi-threaded C++ loop (render/cpu_raycaster.h) in the same run.
+//
+// Flow: load the volume into RAM as stored uint16 (the C++ loop's input), build its octree in
+// memory (the renderer's input), render the reference images ONCE per (view, mode, size) — at
+// most --reference-size pixels square: larger images are compared on their central crop at full
+// resolution — then, per setting, a fresh DeviceOctree (cold: nothing resident):
+//   cold    the first full frame (averages and whatever the wanted levels' ancestors give),
+//   steady  the first full frame that requests nothing more (the frame seen while interacting),
+//   refined a fresh device octree refined to completion (total time of all passes).
+// Sweep: every view and mode at the first size with lod_bias 0, step 1, the large brick buffer;
+// then, for the iso view, one setting changed at a time: lod_bias 1 and 2, step 0.5 and 2, the
+// small brick buffer, and each further size. --headline-only keeps just the iso settings the
+// headline ratios need (for large volumes, where the whole sweep takes too long).
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <tuple>
+#include <vector>
+
+#include "app/commands.h"
+#include "app/flags.h"
+#include "io/open_volume.h"
+#include "io/synthetic_embryo.h"
+#include "octree/octree.h"
+#include "paging/memory_page_store.h"
+#include "paging/page_cache.h"
+#include "protocol/render_bench_report.h"
+#include "render/camera.h"
+#include "render/cpu_raycaster.h"
+#include "render/device.h"
+#include "render/device_octree.h"
+#include "render/program_cache.h"
+#include "render/reference_renderer.h"
+#include "render/render_params.h"
+#include "render/volume_renderer.h"
+#include "util/strings.h"
+#include "volume/value_map.h"
+
+namespace octoscope::app {
+namespace {
+
+using protocol::RenderBenchHeadline;
+using protocol::RenderBenchReport;
+using protocol::RenderBenchRow;
+using render::Camera;
+using render::RenderImage;
+using render::RenderMode;
+using render::RenderParams;
+
+constexpr const char* kCommand = "octoscope bench render";
+constexpr double kPsnrCap = 99;  // PSNR of (nearly) identical images, so every number is finite.
+
+double MsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+int Usage(const std::string& message, const Flags& flags) {
+  std::fprintf(stderr, "%s: %s\n\n%s", kCommand, message.c_str(), flags.Help().c_str());
+  return kExitUsage;
+}
+
+int Fail(const std::string& message) {
+  std::string line = message;
+  std::replace(line.begin(), line.end(), '\n', ' ');
+  std::fprintf(stderr, "%s: %s\n", kCommand, line.c_str());
+  return kExitBadInput;
+}
+
+Result<std::vector<int>> ParseSizes(const std::string& text) {
+  std::vector<int> sizes;
+  for (std::string_view part : Split(text, ',')) {
+    std::optional<int64_t> v = ParseInt64(part);
+    if (!v || *v < 8 || *v > 4096) {
+      return InvalidArgumentError("--sizes: '" + Printable(part) +
+                                  "' must be an integer in 8..4096");
+    }
+    sizes.push_back(static_cast<int>(*v));
+  }
+  if (sizes.empty()) return InvalidArgumentError("--sizes: empty");
+  return sizes;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The volume in RAM (stored values) and its octree.
+
+struct LoadedVolume {
+  volume::VolumeInfo info;
+  std::string description;
+  volume::DataType stored_type = volume::DataType::kUint16;
+  std::vector<std::vector<uint16_t>> channels;  // Moved into the C++ loop once not needed here.
+  RenderParams dvr;                             // The bench's appearance per mode (BenchParams).
+  RenderParams mip;
+
+  // The bench's parameters for `mode` at `step`.
+  RenderParams Params(RenderMode mode, double step) const {
+    RenderParams p = mode == RenderMode::kDvr ? dvr : mip;
+    p.step_voxels = step;
+    return p;
+  }
+};
+
+// Reads every plane of `source` on all cores (sources are thread-safe) as stored values.
+Result<LoadedVolume> LoadVolume(io::VolumeSource& source, std::string description) {
+  LoadedVolume v;
+  v.info = source.info();
+  v.description = std::move(description);
+  const volume::DataType dtype = v.info.dtype;
+  if (volume::BytesPerSample(dtype) > 2) {
+    return InvalidArgumentError("bench render reads 8- and 16-bit data only (this is " +
+                                std::string(volume::NumpyName(dtype)) + ")");
+  }
+  const volume::ValueMap map = volume::FixedValueMap(dtype);
+  v.stored_type = map.stored_type;
+  const int channels = v.info.channel_count();
+  const int64_t nz = v.info.size[2];
+  const uint64_t plane = v.info.PlaneVoxels();
+  v.channels.assign(channels, std::vector<uint16_t>(plane * nz));
+  std::atomic<int64_t> next{0};
+  std::vector<Status> errors(std::max(1u, std::thread::hardware_concurrency()));
+  auto work = [&](Status* error) {
+    std::vector<std::byte> file_plane(source.SlabBytes(1));
+    std::vector<std::byte> stored(plane * volume::BytesPerSample(map.stored_type));
+    for (int64_t job = next++; job < channels * nz; job = next++) {
+      const int c = static_cast<int>(job / nz);
+      const int64_t z = job % nz;
+      if (Status s = source.ReadSlab(c, z, 1, file_plane); !s.ok()) {
+        *error = s;
+        return;
+      }
+      volume::ConvertToStored(map, file_plane, stored);
+      uint16_t* dst = v.channels[c].data() + z * plane;
+      if (volume::BytesPerSample(map.stored_type) == 1) {
+        for (uint64_t i = 0; i < plane; ++i) dst[i] = static_cast<uint8_t>(stored[i]);
+      } else {
+        std::memcpy(dst, stored.data(), plane * 2);
+      }
+    }
+  };
+  std::vector<std::thread> threads;
+  for (size_t k = 1; k < errors.size(); ++k) threads.emplace_back(work, &errors[k]);
+  work(&errors[0]);
+  for (std::thread& t : threads) t.join();
+  for (const Status& s : errors) OCTO_RETURN_IF_ERROR(s);
+  return v;
+}
+
+struct InMemoryOctree {
+  std::unique_ptr<paging::MemoryPageStore> store;
+  std::unique_ptr<paging::PageCache> cache;
+  std::unique_ptr<octree::Octree> tree;
+};
+
+// Builds the octree of `v` in memory, brick layer by brick layer, with the build command's
+// homogeneity rule (threshold of each channel's data range).
+Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, double threshold) {
+  octree::OctreeOptions options;
+  options.brick_size = {brick, brick, brick};
+  options.bytes_per_sample = static_cast<int>(volume::BytesPerSample(v.stored_type));
+  options.homogeneity_threshold = threshold;
+  for (const auto& ch : v.channels) {
+    const auto [lo, hi] = std::minmax_element(ch.begin(), ch.end());
+    options.value_range.push_back(static_cast<uint32_t>(*hi - *lo));
+  }
+  InMemoryOctree t;
+  const uint64_t bytes = v.info.VoxelBytes();
+  // Pages of 8 stored bricks (a page must hold at least one), as the test scenes use.
+  const uint64_t stored_brick = static_cast<uint64_t>((brick + 2) * (brick + 2) * (brick + 2)) *
+                                v.channels.size() * options.bytes_per_sample;
+  t.store =
+      std::make_unique<paging::MemoryPageStore>(std::max(stored_brick * 8, uint64_t{1} << 20));
+  t.cache = std::make_unique<paging::PageCache>(t.store.get(), bytes + (uint64_t{256} << 20));
+  volume::VolumeInfo info = v.info;
+  OCTO_ASSIGN_OR_RETURN(t.tree, octree::Octree::Create(info, options, t.cache.get()));
+  const auto& n = v.info.size;
+  const size_t plane = static_cast<size_t>(n[0] * n[1]);
+  const int sample_bytes = options.bytes_per_sample;
+  std::vector<std::byte> narrow;
+  for (size_t c = 0; c < v.channels.size(); ++c) {
+    for (int64_t z0 = 0; z0 < n[2]; z0 += brick) {
+      const int64_t z1 = std::min(n[2], z0 + brick);
+      const uint16_t* first = v.channels[c].data() + plane * z0;
+      const size_t count = plane * static_cast<size_t>(z1 - z0);
+      std::span<const std::byte> data;
+      if (sample_bytes == 1) {
+        narrow.resize(count);
+        for (size_t i = 0; i < count; ++i) narrow[i] = static_cast<std::byte>(first[i]);
+        data = narrow;
+      } else {
+        data = std::as_bytes(std::span<const uint16_t>(first, count));
+      }
+      OCTO_RETURN_IF_ERROR(
+          t.tree->Insert(static_cast<int>(c), octree::Box{{0, 0, z0}, {n[0], n[1], z1}}, data));
+    }
+  }
+  return t;
+}
+
+// Bench appearance: per channel a window from the data's histogram (60th percentile, mostly
+// background, to the 99.9th), the file's colour or a palette colour, DVR opacity 0.3.
+RenderParams BenchParams(const LoadedVolume& v, RenderMode mode) {
+  static constexpr std::array<std::array<double, 3>, 4> kPalette = {
+      {{0.2, 1, 0.3}, {1, 0.2, 0.8}, {0.2, 0.8, 1}, {1, 0.9, 0.2}}};
+  RenderParams params =
+      render::DefaultRenderParams(static_cast<int>(v.channels.size()), v.stored_type, mode);
+  for (size_t c = 0; c < v.channels.size(); ++c) {
+    std::vector<uint64_t> histogram(65536, 0);
+    const auto& ch = v.channels[c];
+    for (size_t i = 0; i < ch.size(); i += 7) ++histogram[ch[i]];  // A 1/7 sample is plenty.
+    const uint64_t total = (ch.size() + 6) / 7;
+    auto percentile = [&](double p) {
+      uint64_t seen = 0;
+      for (int value = 0; value < 65536; ++value) {
+        seen += histogram[value];
+        if (seen >= p * total) return value;
+      }
+      return 65535;
+    };
+    const double lo = percentile(0.6);
+    const double hi = std::max(lo + 2, static_cast<double>(percentile(0.999)));
+    render::ChannelParams& cp = params.channels[c];
+    cp.window = hi - lo;
+    cp.level = (hi + lo) / 2;
+    cp.opacity_scale = 0.3;
+    if (c < v.info.channels.size() && v.info.channels[c].color) {
+      const volume::Rgba& rgba = *v.info.channels[c].color;
+      cp.color = {rgba.r / 255.0, rgba.g / 255.0, rgba.b / 255.0};
+    } else {
+      cp.color = kPalette[c % kPalette.size()];
+    }
+  }
+  return params;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Views, settings, references and image errors.
+
+constexpr std::array<const char*, 4> kViewNames = {"z", "x", "iso", "persp"};
+
+Result<Camera> ViewCamera(const std::string& view, const render::Box3& box, int size) {
+  if (view == "z") {
+    return Camera::Standard(render::StandardView::kZ, render::Projection::kOrthographic, box, size,
+                            size);
+  }
+  if (view == "x") {
+    return Camera::Standard(render::StandardView::kX, render::Projection::kOrthographic, box, size,
+                            size);
+  }
+  if (view == "iso") {
+    return Camera::Standard(render::StandardView::kIso, render::Projection::kOrthographic, box,
+                            size, size);
+  }
+  return Camera::Standard(render::StandardView::kY, render::Projection::kPerspective, box, size,
+                          size);
+}
+
+// The central crop x crop pixels of `camera` as a camera of their own (same pixel centres).
+Result<Camera> CropCamera(const Camera& camera, int crop) {
+  const double scale = static_cast<double>(crop) / camera.height();
+  const double pi = std::acos(-1.0);
+  const double fov = 2 * std::atan(std::tan(camera.fov_y_degrees() * pi / 360) * scale) * 180 / pi;
+  return Camera::LookAt(camera.projection(), camera.position(),
+                        camera.position() + camera.forward(), camera.up(), crop, crop, fov,
+                        camera.ortho_height() * scale);
+}
+
+struct ImageError {
+  double psnr = kPsnrCap;
+  double max_abs = 0;
+};
+
+// `image` (size S) against `reference` (its central crop, size R <= S).
+ImageError CompareWithReference(const RenderImage& image, const RenderImage& reference) {
+  ImageError e;
+  const int offset = (image.width - reference.width) / 2;
+  double sum_sq = 0;
+  uint64_t n = 0;
+  for (int y = 0; y < reference.height; ++y) {
+    for (int x = 0; x < reference.width; ++x) {
+      const auto a = image.Pixel(x + offset, y + offset);
+      const auto b = reference.Pixel(x, y);
+      for (int k = 0; k < 4; ++k) {
+        double d = std::abs(static_cast<double>(a[k]) - b[k]);
+        if (!std::isfinite(d)) d = 1;
+        e.max_abs = std::max(e.max_abs, d);
+        if (k < 3) {
+          sum_sq += d * d;
+          ++n;
+        }
+      }
+    }
+  }
+  const double mse = n ? sum_sq / static_cast<double>(n) : 0;
+  e.psnr = mse > 0 ? std::min(kPsnrCap, 10 * std::log10(1 / mse)) : kPsnrCap;
+  return e;
+}
+
+struct Setting {
+  std::string view;
+  RenderMode mode;
+  int size;
+  double lod_bias;
+  double step;
+  bool small_buffer;
+};
+
+std::vector<Setting> BuildSweep(const std::vector<int>& sizes, bool headline_only) {
+  std::vector<Setting> sweep;
+  const int base = sizes[0];
+  if (headline_only) {
+    // Just what the headlines need: iso at the base size, and MIP at the largest size.
+    const int big = *std::max_element(sizes.begin(), sizes.end());
+    sweep.push_back({"iso", RenderMode::kDvr, base, 0, 1, false});
+    sweep.push_back({"iso", RenderMode::kMip, base, 0, 1, false});
+    if (big != base) sweep.push_back({"iso", RenderMode::kMip, big, 0, 1, false});
+    return sweep;
+  }
+  for (const char* view : kViewNames) {
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+      sweep.push_back({view, mode, base, 0, 1, false});
+    }
+  }
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    for (double lod : {1.0, 2.0}) sweep.push_back({"iso", mode, base, lod, 1, false});
+    for (double step : {0.5, 2.0}) sweep.push_back({"iso", mode, base, 0, step, false});
+    sweep.push_back({"iso", mode, base, 0, 1, true});
+    for (size_t i = 1; i < sizes.size(); ++i) sweep.push_back({"iso", mode, sizes[i], 0, 1, false});
+  }
+  return sweep;
+}
+
+using ReferenceKey = std::tuple<std::string, RenderMode, int>;  // View, mode, image size.
+
+// Renders every reference image on all cores (RenderReference is reentrant), each at
+// min(size, reference_size) pixels: the central crop of larger images.
+Result<std::map<ReferenceKey, RenderImage>> RenderReferences(const render::ReferenceVolume& volume,
+                                                             const LoadedVolume& loaded,
+                                                             const std::vector<ReferenceKey>& keys,
+                                                             int reference_size,
+                                                             double reference_step) {
+  std::vector<RenderImage> images(keys.size());
+  std::vector<Status> errors(keys.size());
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t i = next++; i < keys.size(); i = next++) {
+      const auto& [view, mode, size] = keys[i];
+      const RenderParams params = loaded.Params(mode, reference_step);
+      Result<Camera> camera = ViewCamera(view, volume.bounds(), size);
+      if (camera.ok() && size > reference_size) camera = CropCamera(*camera, reference_size);
+      if (!camera.ok()) {
+        errors[i] = camera.status();
+        continue;
+      }
+      Result<RenderImage> image = render::RenderReference(volume, *camera, params);
+      if (!image.ok()) {
+        errors[i] = image.status();
+        continue;
+      }
+      images[i] = std::move(*image);
+    }
+  };
+  std::vector<std::thread> threads;
+  const unsigned n = std::max(1u, std::thread::hardware_concurrency());
+  for (unsigned k = 1; k < n; ++k) threads.emplace_back(work);
+  work();
+  for (std::thread& t : threads) t.join();
+  std::map<ReferenceKey, RenderImage> out;
+  for (size_t i = 0; i < keys.size(); ++i) {
+    OCTO_RETURN_IF_ERROR(errors[i]);
+    out[keys[i]] = std::move(images[i]);
+  }
+  return out;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Measuring the renderer.
+
+struct Bench {
+  const render::ComputeContext* context;
+  render::ProgramCache* programs;
+  octree::Octree* tree;
+  const LoadedVolume* loaded;
+  render::Vec3 spacing;
+  render::Box3 box;
+  uint64_t small_bytes;
+  uint64_t large_bytes;
+  const std::map<ReferenceKey, RenderImage>* references;
+};
+
+struct Renderer {
+  std::unique_ptr<render::DeviceOctree> octree;
+  std::unique_ptr<render::VolumeRenderer> renderer;
+};
+
+Result<Renderer> FreshRenderer(const Bench& b, uint64_t brick_bytes) {
+  Renderer r;
+  render::DeviceOctreeOptions options;
+  options.brick_buffer_bytes = brick_bytes;
+  OCTO_ASSIGN_OR_RETURN(r.octree, render::DeviceOctree::Create(b.context, b.tree, options));
+  OCTO_ASSIGN_OR_RETURN(
+      r.renderer, render::VolumeRenderer::Create(b.context, b.programs, r.octree.get(), b.spacing));
+  return r;
+}
+
+RenderBenchRow RowFor(const Setting& s, const char* kind, double brick_mb) {
+  RenderBenchRow row;
+  row.view = s.view;
+  row.mode = std::string(render::RenderModeName(s.mode));
+  row.frame_kind = kind;
+  row.size = s.size;
+  row.lod_bias = s.lod_bias;
+  row.step = s.step;
+  row.brick_mb = brick_mb;
+  return row;
+}
+
+void FillTiming(RenderBenchRow& row, double ms, const render::FrameStats& stats) {
+  row.ms = ms;
+  row.fps = ms > 0 ? 1000 / ms : 0;
+  // Kernel throughput: channel samples per second of kernel time.
+  row.msamples_per_s = stats.ms_kernel > 0 ? stats.samples / (stats.ms_kernel * 1e3) : 0;
+}
+
+void FillError(RenderBenchRow& row, const RenderImage& image, const RenderImage& reference) {
+  const ImageError e = CompareWithReference(image, reference);
+  row.psnr_db = e.psnr;
+  row.max_err = e.max_abs;
+}
+
+constexpr int kMaxWarmupFrames = 10;  // Full frames settle in 2 when the bricks fit.
+
+// Runs a full frame and one refinement pass of each mode at `size` on a throwaway renderer: the
+// OpenCL driver may compile kernels per launch size (PoCL does), which no cold frame should pay.
+Status WarmUpSize(const Bench& b, int size) {
+  OCTO_ASSIGN_OR_RETURN(Camera camera, ViewCamera("iso", b.box, size));
+  OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, b.small_bytes));
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    const RenderParams params = b.loaded->Params(mode, 1);
+    render::FrameOptions options;
+    OCTO_RETURN_IF_ERROR(r.renderer->RenderFullFrame(camera, params, options).status());
+    options.mode = render::FrameMode::kRefine;
+    options.max_passes = 1;
+    OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, options).status());
+  }
+  return Status::Ok();
+}
+constexpr int kMaxPasses = 5000;
+
+// The three rows (cold, steady, refined) of one setting.
+Status MeasureSetting(const Bench& b, const Setting& s, std::vector<RenderBenchRow>* rows) {
+  const uint64_t brick_bytes = s.small_buffer ? b.small_bytes : b.large_bytes;
+  const double brick_mb = static_cast<double>(brick_bytes) / (1 << 20);
+  const RenderParams params = b.loaded->Params(s.mode, s.step);
+  OCTO_ASSIGN_OR_RETURN(Camera camera, ViewCamera(s.view, b.box, s.size));
+  const RenderImage& reference = b.references->at({s.view, s.mode, s.size});
+
+  // Full frames from cold until a frame requests nothing (or the warm-up limit).
+  {
+    OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, brick_bytes));
+    render::FrameOptions options;
+    options.lod_bias = s.lod_bias;
+    render::FrameStats stats;
+    OCTO_ASSIGN_OR_RETURN(RenderImage image,
+                          r.renderer->RenderFullFrame(camera, params, options, &stats));
+    RenderBenchRow cold = RowFor(s, "cold", brick_mb);
+    FillTiming(cold, stats.ms_total, stats);
+    cold.bricks_uploaded = stats.bricks_uploaded;
+    cold.passes = 1;
+    FillError(cold, image, reference);
+    rows->push_back(cold);
+    int frames = 1;
+    while (stats.requests > 0 && frames < kMaxWarmupFrames) {
+      stats = {};
+      OCTO_ASSIGN_OR_RETURN(image, r.renderer->RenderFullFrame(camera, params, options, &stats));
+      ++frames;
+    }
+    RenderBenchRow steady = RowFor(s, stats.requests > 0 ? "unsteady" : "steady", brick_mb);
+    FillTiming(steady, stats.ms_total, stats);
+    steady.bricks_uploaded = r.octree->total_uploaded();
+    steady.passes = frames;
+    FillError(steady, image, reference);
+    rows->push_back(steady);
+  }
+  // Refinement from cold to completion.
+  {
+    OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, brick_bytes));
+    render::FrameOptions options;
+    options.mode = render::FrameMode::kRefine;
+    options.lod_bias = s.lod_bias;
+    options.max_passes = kMaxPasses;
+    render::FrameStats stats;
+    OCTO_ASSIGN_OR_RETURN(RenderImage image, r.renderer->Render(camera, params, options, &stats));
+    RenderBenchRow refined = RowFor(s, stats.final ? "refined" : "refined*", brick_mb);
+    FillTiming(refined, stats.ms_total, stats);
+    refined.bricks_uploaded = stats.bricks_uploaded;
+    refined.passes = stats.passes;
+    FillError(refined, image, reference);
+    rows->push_back(refined);
+  }
+  return Status::Ok();
+}
+
+template <typename T>
+T Median(std::vector<T> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+struct KernelVsLoop {
+  double kernel_msamples = 0;  // Samples / kernel ms.
+  double kernel_ms = 0;        // Frame ms (median).
+  uint64_t kernel_samples = 0;
+  double loop_msamples = 0;
+  double loop_ms = 0;
+  uint64_t loop_samples = 0;
+  int loop_threads = 0;
+  double kernel_vs_loop_max_err = 0;  // Level-0 kernel image against the loop's.
+  double loop_vs_reference_max_err = 0;
+  bool steady = false;
+};
+
+// Headline (a): the kernels at level 0 with everything the view needs resident (made so by a
+// refinement, then full frames until none requests anything), against the C++ loop, same view,
+// size and step. Medians of `repeats` frames each.
+Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const render::CpuRaycaster& loop,
+                                         RenderMode mode, int size, int repeats) {
+  KernelVsLoop k;
+  const RenderParams params = b.loaded->Params(mode, 1);
+  OCTO_ASSIGN_OR_RETURN(Camera camera, ViewCamera("iso", b.box, size));
+  OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, b.large_bytes));
+  render::FrameOptions options;
+  options.mode = render::FrameMode::kRefine;
+  options.lod_bias = -32;  // Level 0 everywhere.
+  options.max_passes = kMaxPasses;
+  render::FrameStats stats;
+  OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, options, &stats).status());
+  options.mode = render::FrameMode::kFullFrame;
+  RenderImage kernel_image;
+  for (int frame = 0; frame < kMaxWarmupFrames; ++frame) {
+    stats = {};
+    OCTO_ASSIGN_OR_RETURN(kernel_image,
+                          r.renderer->RenderFullFrame(camera, params, options, &stats));
+    if (stats.requests == 0) {
+      k.steady = true;
+      break;
+    }
+  }
+  std::vector<double> kernel_ms, kernel_rate;
+  for (int i = 0; i < repeats; ++i) {
+    stats = {};
+    OCTO_ASSIGN_OR_RETURN(kernel_image,
+                          r.renderer->RenderFullFrame(camera, params, options, &stats));
+    kernel_ms.push_back(stats.ms_total);
+    kernel_rate.push_back(stats.ms_kernel > 0 ? stats.samples / (stats.ms_kernel * 1e3) : 0);
+    k.kernel_samples = stats.samples;
+  }
+  k.kernel_ms = Median(kernel_ms);
+  k.kernel_msamples = Median(kernel_rate);
+
+  std::vector<double> loop_ms;
+  RenderImage loop_image;
+  for (int i = 0; i < repeats; ++i) {
+    render::CpuRaycastStats loop_stats;
+    OCTO_ASSIGN_OR_RETURN(loop_image, loop.Render(camera, params, 0, &loop_stats));
+    loop_ms.push_back(loop_stats.ms);
+    k.loop_samples = loop_stats.samples;
+    k.loop_threads = loop_stats.threads;
+  }
+  k.loop_ms = Median(loop_ms);
+  k.loop_msamples = k.loop_ms > 0 ? k.loop_samples / (k.loop_ms * 1e3) : 0;
+  k.kernel_vs_loop_max_err = CompareWithReference(kernel_image, loop_image).max_abs;
+  if (auto it = b.references->find({"iso", mode, size}); it != b.references->end()) {
+    k.loop_vs_reference_max_err = CompareWithReference(loop_image, it->second).max_abs;
+  }
+  return k;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Output: the markdown table and the speed-vs-error SVG.
+
+std::string Format(const char* format, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof(buf), format, v);
+  return buf;
+}
+
+std::string MarkdownTable(const std::vector<RenderBenchRow>& rows) {
+  std::ostringstream out;
+  out << "| view | mode | frame kind | size | lod_bias | step | brick_mb | ms/frame | fps | "
+         "Msamples/s | bricks_uploaded | passes | PSNR (dB) | max_err |\n";
+  out << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  for (const RenderBenchRow& r : rows) {
+    out << "| " << r.view << " | " << r.mode << " | " << r.frame_kind << " | " << r.size << "² | "
+        << Format("%g", r.lod_bias) << " | " << Format("%g", r.step) << " | "
+        << Format("%.3g", r.brick_mb) << " | " << Format("%.1f", r.ms) << " | "
+        << Format("%.2f", r.fps) << " | " << Format("%.1f", r.msamples_per_s) << " | "
+        << r.bricks_uploaded << " | " << r.passes << " | " << Format("%.1f", r.psnr_db) << " | "
+        << Format("%.4f", r.max_err) << " |\n";
+  }
+  return out.str();
+}
+
+std::string SvgEscape(const std::string& text) {
+  std::string out;
+  for (char c : text) {
+    if (c == '<') {
+      out += "&lt;";
+    } else if (c == '>') {
+      out += "&gt;";
+    } else if (c == '&') {
+      out += "&amp;";
+    } else {
+      out += c;
+    }
+  }
+  return out;
+}
+
+// x = ms per frame (log scale), y = PSNR; colour = mode, marker = frame kind.
+std::string SpeedErrorSvg(const std::vector<RenderBenchRow>& rows, const std::string& title) {
+  constexpr double kW = 960, kH = 600, kLeft = 70, kRight = 30, kTop = 40, kBottom = 60;
+  double lo_ms = 1e300, hi_ms = 0, lo_db = 1e300, hi_db = -1e300;
+  for (const RenderBenchRow& r : rows) {
+    const double ms = std::max(r.ms, 1e-3);
+    lo_ms = std::min(lo_ms, ms);
+    hi_ms = std::max(hi_ms, ms);
+    lo_db = std::min(lo_db, r.psnr_db);
+    hi_db = std::max(hi_db, r.psnr_db);
+  }
+  if (rows.empty()) lo_ms = hi_ms = 1, lo_db = hi_db = 0;
+  const double x0 = std::floor(std::log10(lo_ms)),
+               x1 = std::max(x0 + 1, std::ceil(std::log10(hi_ms)));
+  const double y0 = std::floor(lo_db / 5) * 5, y1 = std::max(y0 + 5, std::ceil(hi_db / 5) * 5);
+  auto px = [&](double ms) {
+    return kLeft + (std::log10(std::max(ms, 1e-3)) - x0) / (x1 - x0) * (kW - kLeft - kRight);
+  };
+  auto py = [&](double db) { return kH - kBottom - (db - y0) / (y1 - y0) * (kH - kTop - kBottom); };
+  std::ostringstream s;
+  s << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n";
+  s << "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"" << kW << "\" height=\"" << kH
+    << "\" viewBox=\"0 0 " << kW << " " << kH << "\" font-family=\"sans-serif\">\n";
+  s << "<rect x=\"0\" y=\"0\" width=\"" << kW << "\" height=\"" << kH << "\" fill=\"white\"/>\n";
+  s << "<text x=\"" << kW / 2 << "\" y=\"22\" text-anchor=\"middle\" font-size=\"15\">"
+    << SvgEscape(title) << "</text>\n";
+  // Grid: decades of ms, 5 dB steps.
+  for (double e = x0; e <= x1 + 1e-9; e += 1) {
+    const double x = px(std::pow(10.0, e));
+    s << "<line x1=\"" << x << "\" y1=\"" << kTop << "\" x2=\"" << x << "\" y2=\"" << kH - kBottom
+      << "\" stroke=\"#ddd\"/>\n";
+    s << "<text x=\"" << x << "\" y=\"" << kH - kBottom + 18 << "\" text-anchor=\"middle\" "
+      << "font-size=\"12\">" << Format("%g", std::pow(10.0, e)) << "</text>\n";
+  }
+  for (double db = y0; db <= y1 + 1e-9; db += 5) {
+    const double y = py(db);
+    s << "<line x1=\"" << kLeft << "\" y1=\"" << y << "\" x2=\"" << kW - kRight << "\" y2=\"" << y
+      << "\" stroke=\"#ddd\"/>\n";
+    s << "<text x=\"" << kLeft - 6 << "\" y=\"" << y + 4
+      << "\" text-anchor=\"end\" font-size=\"12\">" << Format("%g", db) << "</text>\n";
+  }
+  s << "<rect x=\"" << kLeft << "\" y=\"" << kTop << "\" width=\"" << kW - kLeft - kRight
+    << "\" height=\"" << kH - kTop - kBottom << "\" fill=\"none\" stroke=\"black\"/>\n";
+  s << "<text x=\"" << (kLeft + kW - kRight) / 2 << "\" y=\"" << kH - 18
+    << "\" text-anchor=\"middle\" font-size=\"13\">ms per frame (log scale)</text>\n";
+  s << "<text x=\"18\" y=\"" << (kTop + kH - kBottom) / 2 << "\" text-anchor=\"middle\" "
+    << "font-size=\"13\" transform=\"rotate(-90 18 " << (kTop + kH - kBottom) / 2
+    << ")\">PSNR vs CPU reference (dB)</text>\n";
+  for (const RenderBenchRow& r : rows) {
+    const double x = px(r.ms), y = py(r.psnr_db);
+    const char* colour = r.mode == "dvr" ? "#d62728" : "#1f77b4";
+    const std::string label = r.view + " " + std::to_string(r.size) + " L" +
+                              Format("%g", r.lod_bias) + " s" + Format("%g", r.step) + " B" +
+                              Format("%.3g", r.brick_mb) + " " + r.frame_kind;
+    if (r.frame_kind.rfind("refined", 0) == 0) {
+      s << "<rect x=\"" << x - 4 << "\" y=\"" << y - 4 << "\" width=\"8\" height=\"8\" fill=\""
+        << colour << "\"><title>" << SvgEscape(label) << "</title></rect>\n";
+    } else {
+      const bool cold = r.frame_kind == "cold";
+      s << "<circle cx=\"" << x << "\" cy=\"" << y << "\" r=\"4\" fill=\""
+        << (cold ? "white" : colour) << "\" stroke=\"" << colour << "\"><title>" << SvgEscape(label)
+        << "</title></circle>\n";
+    }
+    s << "<text x=\"" << x + 6 << "\" y=\"" << y - 3 << "\" font-size=\"8\" fill=\"#444\">"
+      << SvgEscape(label) << "</text>\n";
+  }
+  // Legend.
+  const double lx = kLeft + 10, ly = kTop + 14;
+  s << "<circle cx=\"" << lx << "\" cy=\"" << ly << "\" r=\"4\" fill=\"#d62728\"/>"
+    << "<text x=\"" << lx + 8 << "\" y=\"" << ly + 4 << "\" font-size=\"11\">dvr</text>\n";
+  s << "<circle cx=\"" << lx + 50 << "\" cy=\"" << ly << "\" r=\"4\" fill=\"#1f77b4\"/>"
+    << "<text x=\"" << lx + 58 << "\" y=\"" << ly + 4 << "\" font-size=\"11\">mip</text>\n";
+  s << "<circle cx=\"" << lx + 100 << "\" cy=\"" << ly << "\" r=\"4\" fill=\"white\" "
+    << "stroke=\"black\"/><text x=\"" << lx + 108 << "\" y=\"" << ly + 4
+    << "\" font-size=\"11\">cold full frame</text>\n";
+  s << "<circle cx=\"" << lx + 210 << "\" cy=\"" << ly << "\" r=\"4\" fill=\"black\"/>"
+    << "<text x=\"" << lx + 218 << "\" y=\"" << ly + 4
+    << "\" font-size=\"11\">steady full frame</text>\n";
+  s << "<rect x=\"" << lx + 326 << "\" y=\"" << ly - 4 << "\" width=\"8\" height=\"8\" "
+    << "fill=\"black\"/><text x=\"" << lx + 340 << "\" y=\"" << ly + 4
+    << "\" font-size=\"11\">refined (total)</text>\n";
+  s << "</svg>\n";
+  return s.str();
+}
+
+Status WriteText(const std::filesystem::path& path, const std::string& text) {
+  std::ofstream out(path, std::ios::trunc | std::ios::binary);
+  out << text;
+  out.close();
+  if (!out) return InternalError("cannot write " + path.string());
+  return Status::Ok();
+}
+
+// ---------------------------------------------------------------------------------------------
+
+int RunBenchRender(std::span<const std::string> args) {
+  const auto start = std::chrono::steady_clock::now();
+  Flags flags(
+      "octoscope bench render [INPUT] [options]",
+      "Speed against error of the OpenCL renderer: renders fixed views (z, x, iso orthographic,\n"
+      "one perspective) of INPUT (8/16-bit; default: the demo specimen, built in memory) over\n"
+      "a sweep of settings, compares every image with the CPU reference renderer and measures\n"
+      "the kernels against a hand-written multi-threaded C++ loop. Writes DIR/render_bench.md\n"
+      "(also printed) and DIR/render_bench.svg (speed vs error).");
+  flags.SetPositionals("[INPUT]", 0, 1);
+  flags.AddValue("demo", "SIZE", "use the demo specimen of SIZE^3 voxels (1 µm isotropic)",
+                 "512; 32 with --quick");
+  flags.AddValue("channels", "N", "demo channels, 1..4", "3");
+  flags.AddValue("out-dir", "DIR", "output directory", "out/bench-render");
+  flags.AddValue("sizes", "LIST", "image sizes (first: the base size)", "256,512,1024");
+  flags.AddValue("reference-size", "R",
+                 "reference images at most R x R; larger images are compared on their central\n"
+                 "                            R x R crop at full resolution",
+                 "256; 24 with --quick");
+  flags.AddValue("reference-step", "S", "step of the reference images, voxels", "0.5");
+  flags.AddValue("brick", "N", "octree brick size, even", "64; 16 with --quick");
+  flags.AddValue("threshold", "F", "homogeneity threshold (fraction of each channel's range)",
+                 "0.05");
+  flags.AddValue("repeats", "N", "frames timed for the headline ratios (median)", "3");
+  flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
+  flags.AddSwitch("quick", "a tiny run (seconds): 32^3 demo, 32^2 images, 24^2 references");
+  flags.AddSwitch("headline-only",
+                  "measure only the settings the headline ratios need (iso view; large volumes)");
+  flags.AddSwitch("json", "print the results as one JSON document instead of the table");
+  if (Status s = flags.Parse(args); !s.ok()) return Usage(s.message(), flags);
+  if (flags.help_requested()) {
+    std::printf("%s", flags.Help().c_str());
+    return kExitOk;
+  }
+  const bool quick = flags.Has("quick");
+  const bool json = flags.Has("json");
+  auto demo_size = flags.GetInt("demo", quick ? 32 : 512, 8, 4096);
+  if (!demo_size.ok()) return Usage(demo_size.status().message(), flags);
+  auto channels = flags.GetInt("channels", 3, 1, io::SyntheticEmbryo::kMaxChannels);
+  if (!channels.ok()) return Usage(channels.status().message(), flags);
+  auto sizes = ParseSizes(flags.Get("sizes").value_or(quick ? "32" : "256,512,1024"));
+  if (!sizes.ok()) return Usage(sizes.status().message(), flags);
+  auto reference_size = flags.GetInt("reference-size", quick ? 24 : 256, 8, 4096);
+  if (!reference_size.ok()) return Usage(reference_size.status().message(), flags);
+  for (int size : *sizes) {
+    if (size > *reference_size && (size - *reference_size) % 2 != 0) {
+      return Usage("--sizes: " + std::to_string(size) + " - reference size must be even", flags);
+    }
+  }
+  auto reference_step = flags.GetDouble("reference-step", 0.5);
+  if (!reference_step.ok()) return Usage(reference_step.status().message(), flags);
+  if (!(*reference_step >= render::kMinStepVoxels && *reference_step <= render::kMaxStepVoxels)) {
+    return Usage("--reference-step must lie in [1/64, 64]", flags);
+  }
+  auto brick = flags.GetInt("brick", quick ? 16 : 64, 2, 256);
+  if (!brick.ok() || *brick % 2 != 0)
+    return Usage("--brick must be an even number in 2..256", flags);
+  auto threshold = flags.GetDouble("threshold", 0.05);
+  if (!threshold.ok()) return Usage(threshold.status().message(), flags);
+  if (!(*threshold >= 0 && *threshold <= 1)) return Usage("--threshold must be in [0, 1]", flags);
+  auto repeats = flags.GetInt("repeats", quick ? 1 : 3, 1, 100);
+  if (!repeats.ok()) return Usage(repeats.status().message(), flags);
+  const std::filesystem::path out_dir = flags.Get("out-dir").value_or("out/bench-render");
+
+  // 1. The volume, as stored values in RAM.
+  std::unique_ptr<io::VolumeSource> source;
+  std::string description;
+  if (!flags.positionals().empty()) {
+    auto opened = io::OpenVolume(flags.positionals()[0], {});
+    if (!opened.ok()) return Fail(opened.status().WithContext(flags.positionals()[0]).ToString());
+    source = std::move(*opened);
+    description = flags.positionals()[0];
+  } else {
+    io::SyntheticEmbryoOptions demo;
+    demo.size = {*demo_size, *demo_size, *demo_size};
+    demo.channels = static_cast<int>(*channels);
+    demo.spacing_um = {1, 1, 1};
+    auto embryo = io::SyntheticEmbryo::Create(demo);
+    if (!embryo.ok()) return Usage(embryo.status().message(), flags);
+    source = std::move(*embryo);
+    description = "demo " + std::to_string(*demo_size) + "^3 x" + std::to_string(*channels) +
+                  " uint16 (1 µm isotropic)";
+  }
+  std::fprintf(stderr, "bench: loading %s ...\n", description.c_str());
+  auto loaded = LoadVolume(*source, description);
+  if (!loaded.ok()) return Fail(loaded.status().ToString());
+  source.reset();
+  loaded->dvr = BenchParams(*loaded, RenderMode::kDvr);
+  loaded->mip = BenchParams(*loaded, RenderMode::kMip);
+  const render::Vec3 spacing = render::PhysicalSpacing(loaded->info);
+  const render::Box3 box = render::PhysicalBounds(loaded->info.size, spacing);
+
+  // 2. The device (before the slow steps: no device, no bench).
+  const std::string preference = flags.Get("device").value_or("");
+  auto device = render::ChooseDevice(preference == "auto" ? "" : preference);
+  if (!device.ok()) return Fail("no OpenCL device: " + device.status().ToString());
+  auto context = render::ComputeContext::Create(*device);
+  if (!context.ok()) return Fail("no OpenCL device: " + context.status().ToString());
+  render::ProgramCache programs(&*context);
+
+  // 3. The octree, in memory.
+  std::fprintf(stderr, "bench: building the octree ...\n");
+  auto tree = BuildInMemory(*loaded, *brick, *threshold);
+  if (!tree.ok()) return Fail(tree.status().ToString());
+  const octree::OctreeStats tree_stats = tree->tree->stats();
+  const uint64_t brick_bytes = tree->tree->geometry().brick_bytes();
+
+  // 4. The reference images, once per (view, mode, size).
+  const std::vector<Setting> sweep = BuildSweep(*sizes, flags.Has("headline-only"));
+  std::vector<ReferenceKey> keys;
+  for (const Setting& s : sweep) {
+    ReferenceKey key{s.view, s.mode, s.size};
+    if (std::find(keys.begin(), keys.end(), key) == keys.end()) keys.push_back(key);
+  }
+  std::fprintf(stderr, "bench: %zu reference images (<= %d^2, step %g) ...\n", keys.size(),
+               static_cast<int>(*reference_size), *reference_step);
+  std::map<ReferenceKey, RenderImage> references;
+  {
+    std::vector<std::vector<uint16_t>> copy = loaded->channels;
+    auto volume = render::ReferenceVolume::FromStored(loaded->info.size, spacing,
+                                                      loaded->stored_type, std::move(copy));
+    if (!volume.ok()) return Fail(volume.status().ToString());
+    auto rendered = RenderReferences(*volume, *loaded, keys, static_cast<int>(*reference_size),
+                                     *reference_step);
+    if (!rendered.ok()) return Fail(rendered.status().ToString());
+    references = std::move(*rendered);
+  }
+
+  // 5. The C++ loop takes the voxels over (the reference's copy is gone: two copies at most).
+  auto loop = render::CpuRaycaster::Create(loaded->info.size, spacing, loaded->stored_type,
+                                           std::move(loaded->channels));
+  if (!loop.ok()) return Fail(loop.status().ToString());
+
+  // Large buffer: every brick of the tree (+ slack); small: an eighth of that (at least the
+  // device octree's minimum slot count).
+  const uint64_t min_bytes = brick_bytes * render::kMinBrickSlots;
+  const uint64_t large = std::max(min_bytes * 2, tree_stats.pool_bytes + tree_stats.pool_bytes / 8);
+  const uint64_t small = std::max(min_bytes, large / 8);
+  Bench bench{&*context, &programs, tree->tree.get(), &*loaded, spacing, box,
+              small,     large,     &references};
+
+  // 6. The sweep.
+  RenderBenchReport report;
+  report.volume = description;
+  report.device = device->ToString();
+  report.reference_size = static_cast<int>(*reference_size);
+  report.reference_step = *reference_step;
+  std::vector<int> warmed;
+  for (const Setting& s : sweep) {
+    if (std::find(warmed.begin(), warmed.end(), s.size) == warmed.end()) {
+      if (Status st = WarmUpSize(bench, s.size); !st.ok()) return Fail(st.ToString());
+      warmed.push_back(s.size);
+    }
+    const size_t first = report.rows.size();
+    if (Status st = MeasureSetting(bench, s, &report.rows); !st.ok()) {
+      return Fail(st.WithContext(s.view + " " + std::string(render::RenderModeName(s.mode)) + " " +
+                                 std::to_string(s.size))
+                      .ToString());
+    }
+    std::fprintf(stderr,
+                 "bench: %s %s %d² lod %g step %g brick %.0f MB: cold %.1f ms, %s %.1f ms "
+                 "(%d frames), refined %.1f ms (%d passes)\n",
+                 s.view.c_str(), std::string(render::RenderModeName(s.mode)).c_str(), s.size,
+                 s.lod_bias, s.step, report.rows[first].brick_mb, report.rows[first].ms,
+                 report.rows[first + 1].frame_kind.c_str(), report.rows[first + 1].ms,
+                 report.rows[first + 1].passes, report.rows[first + 2].ms,
+                 report.rows[first + 2].passes);
+  }
+
+  // 7. Headlines. (a) kernels vs the C++ loop at level 0, everything resident.
+  std::ostringstream head;
+  const int base = (*sizes)[0];
+  head << "Volume: " << description << "; octree: " << tree_stats.nodes << " nodes, "
+       << tree_stats.bricks << " bricks (" << Format("%.0f", tree_stats.pool_bytes / 1048576.0)
+       << " MB), bricks of " << *brick << "³, threshold " << *threshold << ".\n";
+  head << "Device: " << report.device << ". Brick buffers: small "
+       << Format("%.0f", small / 1048576.0) << " MB, large " << Format("%.0f", large / 1048576.0)
+       << " MB.\n";
+  head << "Errors against the CPU reference renderer at step " << *reference_step
+       << " (images larger than " << *reference_size << "² on their central " << *reference_size
+       << "² crop); Msamples/s = channel samples per second of kernel time.\n\n";
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    const std::string name(render::RenderModeName(mode));
+    std::fprintf(stderr, "bench: kernel vs C++ loop, %s ...\n", name.c_str());
+    auto k = MeasureKernelVsLoop(bench, *loop, mode, base, static_cast<int>(*repeats));
+    if (!k.ok()) return Fail(k.status().WithContext("kernel vs loop " + name).ToString());
+    const double ratio = k->loop_msamples > 0 ? k->kernel_msamples / k->loop_msamples : 0;
+    report.headlines.push_back({"kernel_vs_cpu_msamples_" + name, ratio, 0.7, true,
+                                "iso " + std::to_string(base) + "², step 1, level 0"});
+    report.headlines.push_back({"cpu_vs_kernel_ms_" + name,
+                                k->kernel_ms > 0 ? k->loop_ms / k->kernel_ms : 0, 0, true,
+                                "C++ loop ms / kernel frame ms (includes empty-space skipping)"});
+    head << "- **(a) " << name << ": kernel " << Format("%.1f", k->kernel_msamples)
+         << " Msamples/s ÷ C++ loop " << Format("%.1f", k->loop_msamples) << " Msamples/s ("
+         << k->loop_threads << " threads) = " << Format("%.2f", ratio) << "** (goal ≥ 0.7); iso "
+         << base << "², step 1, level 0 everywhere" << (k->steady ? "" : " (NOT all resident)")
+         << ". Frame: kernel " << Format("%.1f", k->kernel_ms) << " ms (" << k->kernel_samples
+         << " samples) vs C++ loop " << Format("%.1f", k->loop_ms) << " ms (" << k->loop_samples
+         << " samples). max |kernel − loop| " << Format("%.4f", k->kernel_vs_loop_max_err)
+         << ", C++ loop vs reference " << Format("%.4f", k->loop_vs_reference_max_err) << ".\n";
+  }
+  // (b) refined MIP at the largest size vs one full-resolution C++ loop pass.
+  {
+    const int big = *std::max_element(sizes->begin(), sizes->end());
+    const RenderBenchRow* refined = nullptr;
+    for (const RenderBenchRow& r : report.rows) {
+      if (r.view == "iso" && r.mode == "mip" && r.size == big && r.lod_bias == 0 && r.step == 1 &&
+          r.brick_mb == large / 1048576.0 && r.frame_kind.rfind("refined", 0) == 0) {
+        refined = &r;
+      }
+    }
+    std::fprintf(stderr, "bench: C++ loop, mip %d² ...\n", big);
+    auto camera = ViewCamera("iso", box, big);
+    render::CpuRaycastStats loop_stats;
+    auto image = camera.ok()
+                     ? loop->Render(*camera, loaded->Params(RenderMode::kMip, 1), 0, &loop_stats)
+                     : Result<RenderImage>(camera.status());
+    if (!image.ok()) return Fail(image.status().ToString());
+    if (refined) {
+      const double ratio = loop_stats.ms > 0 ? refined->ms / loop_stats.ms : 0;
+      report.headlines.push_back({"refined_mip_vs_cpu_pass_" + std::to_string(big), ratio, 3, false,
+                                  "iso, step 1, lod 0"});
+      head << "- **(b) refined " << big << "² MIP " << Format("%.0f", refined->ms) << " ms ("
+           << refined->passes << " passes) ÷ C++ loop full-resolution pass "
+           << Format("%.0f", loop_stats.ms) << " ms = " << Format("%.2f", ratio)
+           << "** (goal ≤ 3).\n";
+    }
+  }
+  // (c) steady full-frame rate at the base size.
+  {
+    double worst = 1e300;
+    std::string list;
+    for (const RenderBenchRow& r : report.rows) {
+      if (r.frame_kind == "steady" && r.size == base && r.lod_bias == 0 && r.step == 1 &&
+          r.brick_mb == large / 1048576.0) {
+        worst = std::min(worst, r.fps);
+        list += (list.empty() ? "" : ", ") + r.view + " " + r.mode + " " + Format("%.1f", r.fps);
+      }
+    }
+    if (worst < 1e300) {
+      report.headlines.push_back(
+          {"steady_full_frame_fps_" + std::to_string(base), worst, 10, true, list});
+      head << "- **(c) steady full frame at " << base << "²: " << Format("%.1f", worst)
+           << " fps at worst** (goal ≥ 10 on 512³): " << list << ".\n";
+    }
+  }
+  report.seconds = MsSince(start) / 1000;
+  head << "\nRun time " << Format("%.0f", report.seconds) << " s.\n";
+
+  // 8. Output.
+  std::error_code ec;
+  std::filesystem::create_directories(out_dir, ec);
+  if (ec) return Fail("cannot create " + out_dir.string() + ": " + ec.message());
+  const std::string markdown = head.str() + "\n" + MarkdownTable(report.rows);
+  if (Status s = WriteText(out_dir / "render_bench.md", markdown); !s.ok()) {
+    return Fail(s.ToString());
+  }
+  if (Status s = WriteText(out_dir / "render_bench.svg",
+                           SpeedErrorSvg(report.rows, "Speed vs error: " + description));
+      !s.ok()) {
+    return Fail(s.ToString());
+  }
+  if (json) {
+    std::printf("%s\n", protocol::RenderBenchReportJson(report).c_str());
+  } else {
+    std::printf("%s", markdown.c_str());
+  }
+  return kExitOk;
+}
+
+}  // namespace
+
+int RunBench(std::span<const std::string> args) {
+  constexpr const char* kUsage =
+      "usage: octoscope bench render [INPUT] [options]\n\n"
+      "Benchmarks. 'octoscope bench render --help' describes the renderer benchmark.\n";
+  if (args.empty()) {
+    std::fprintf(stderr, "%s", kUsage);
+    return kExitUsage;
+  }
+  if (args[0] == "--help" || args[0] == "-h") {
+    std::printf("%s", kUsage);
+    return kExitOk;
+  }
+  if (args[0] == "render") return RunBenchRender(args.subspan(1));
+  std::fprintf(stderr, "octoscope bench: unknown benchmark '%s' (known: render)\n",
+               Printable(args[0]).c_str());
+  return kExitUsage;
+}
+
+}  // namespace octoscope::app

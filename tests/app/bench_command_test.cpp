@@ -1,0 +1,153 @@
+// End-to-end test of `octoscope bench render --quick`: a tiny run exits 0, prints the table with
+// every column, writes a well-formed SVG and a JSON report whose numbers are finite and sane.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "app/run_octoscope.h"
+#include "io/tiff_fixture.h"
+
+namespace octoscope::app {
+namespace {
+
+std::string ReadAll(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+// Minimal XML well-formedness: every element opened is closed in order (self-closing ones
+// count), one root element <svg>, nothing after it.
+bool BalancedXml(const std::string& text, std::string* why) {
+  std::vector<std::string> open;
+  size_t i = 0;
+  bool root_seen = false;
+  while ((i = text.find('<', i)) != std::string::npos) {
+    const size_t end = text.find('>', i);
+    if (end == std::string::npos) {
+      *why = "unterminated tag";
+      return false;
+    }
+    const std::string tag = text.substr(i + 1, end - i - 1);
+    i = end + 1;
+    if (tag.empty() || tag[0] == '?' || tag[0] == '!') continue;
+    if (tag[0] == '/') {
+      if (open.empty() || open.back() != tag.substr(1)) {
+        *why = "mismatched </" + tag.substr(1) + ">";
+        return false;
+      }
+      open.pop_back();
+      continue;
+    }
+    const std::string name = tag.substr(0, tag.find_first_of(" \t\n/"));
+    if (open.empty()) {
+      if (root_seen || name != "svg") {
+        *why = "root element is <" + name + ">";
+        return false;
+      }
+      root_seen = true;
+    }
+    if (tag.back() != '/') open.push_back(name);
+  }
+  if (!open.empty()) *why = "<" + open.back() + "> never closed";
+  return open.empty() && root_seen;
+}
+
+bool SkipWithoutDevice(const RunResult& r) {
+  return r.exit_code != 0 && r.err.find("no OpenCL device") != std::string::npos;
+}
+
+TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
+  const fs::path dir = testing::MakeTempDir("bench-render");
+  const RunResult run = RunOctoscope("bench render --quick --json --out-dir " + Quote(dir));
+  if (SkipWithoutDevice(run)) GTEST_SKIP() << run.err;
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+
+  // The JSON report: every setting has its three rows, every number finite and in range.
+  const nlohmann::json report = nlohmann::json::parse(run.out);
+  const auto& rows = report["rows"];
+  ASSERT_GE(rows.size(), 3u * 8);  // 4 views x 2 modes at least, 3 frame kinds each.
+  int refined = 0, steady = 0, large_full = 0;
+  double large_mb = 0;
+  for (const auto& row : rows) large_mb = std::max(large_mb, row["brick_mb"].get<double>());
+  for (const auto& row : rows) {
+    for (const char* key : {"size", "lod_bias", "step", "brick_mb", "ms", "fps", "msamples_per_s",
+                            "bricks_uploaded", "passes", "psnr_db", "max_err"}) {
+      ASSERT_TRUE(row.contains(key)) << key;
+      const double v = row[key].get<double>();
+      EXPECT_TRUE(std::isfinite(v)) << key << " " << row.dump();
+      EXPECT_GE(v, 0) << key << " " << row.dump();
+    }
+    EXPECT_LE(row["max_err"].get<double>(), 1.0);
+    EXPECT_GT(row["ms"].get<double>(), 0);
+    EXPECT_GE(row["passes"].get<int>(), 1);
+    const std::string kind = row["frame_kind"];
+    refined += kind == "refined";
+    if (row["brick_mb"].get<double>() == large_mb && kind != "cold" && kind != "refined") {
+      ++large_full;
+      steady += kind == "steady";
+    }
+  }
+  // Refinement always completes (it needs only the ray fronts' bricks); with every brick fitting
+  // (the large buffer) full frames settle too. The small buffer may thrash: "unsteady".
+  EXPECT_EQ(refined * 3, static_cast<int>(rows.size()));
+  EXPECT_GT(large_full, 0);
+  EXPECT_EQ(steady, large_full);
+  // A refined image is close to the reference (same data; the step and float rounding differ).
+  for (const auto& row : rows) {
+    if (row["frame_kind"] == "refined" && row["lod_bias"] == 0 && row["step"] == 0.5) {
+      EXPECT_GT(row["psnr_db"].get<double>(), 30) << row.dump();
+    }
+  }
+  const auto& headlines = report["headlines"];
+  ASSERT_GE(headlines.size(), 4u);
+  for (const auto& h : headlines) {
+    EXPECT_TRUE(std::isfinite(h["value"].get<double>())) << h.dump();
+    EXPECT_GT(h["value"].get<double>(), 0) << h.dump();
+  }
+
+  // The markdown table has every column and one line per row.
+  const std::string table = ReadAll(dir / "render_bench.md");
+  for (const char* column :
+       {"view", "mode", "frame kind", "size", "lod_bias", "step", "brick_mb", "ms/frame", "fps",
+        "Msamples/s", "bricks_uploaded", "PSNR (dB)", "max_err"}) {
+    EXPECT_NE(table.find(column), std::string::npos) << column;
+  }
+  size_t lines = 0;
+  for (size_t at = table.find("\n| "); at != std::string::npos; at = table.find("\n| ", at + 1)) {
+    ++lines;
+  }
+  EXPECT_EQ(lines, rows.size() + 1);  // Header + rows (the separator starts with "|-").
+  EXPECT_NE(table.find("(a) dvr"), std::string::npos);
+
+  // The SVG is well-formed and has one marker per row.
+  const std::string svg = ReadAll(dir / "render_bench.svg");
+  std::string why;
+  EXPECT_TRUE(BalancedXml(svg, &why)) << why;
+  size_t titles = 0;
+  for (size_t at = svg.find("<title>"); at != std::string::npos; at = svg.find("<title>", at + 1)) {
+    ++titles;
+  }
+  EXPECT_EQ(titles, rows.size());
+  EXPECT_EQ(svg.find("nan"), std::string::npos);
+  EXPECT_EQ(svg.find("inf"), std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST(BenchCommandTest, BadArgumentsAreUsageErrors) {
+  EXPECT_EQ(RunOctoscope("bench").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench nonsense").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --sizes 0").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --sizes 33 --reference-size 24").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --brick 7").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --no-such-flag").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --help").exit_code, 0);
+  EXPECT_EQ(RunOctoscope("bench render /no/such/file.tif").exit_code, 2);
+}
+
+}  // namespace
+}  // namespace octoscope::app
