@@ -119,7 +119,7 @@ __kernel void RenderSlice(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS,
       hit = OctoFindNode(nodes, g, v, s.level);
       hit_pos = v;
       have_hit = true;
-      if (hit.node != hit.wanted) {
+      if (hit.node != hit.wanted || (OctoNodeHasBrick(hit.word0) && !OctoNodeInBuffer(hit.word0))) {
         OctoRequestNode(request_flags, request_list, request_capacity, hit.wanted, frame);
       }
     }

@@ -1,12 +1,18 @@
 // `octoscope render INPUT|CACHE --out FILE.png|.jpg`: renders one image of a scan (octree built
-// in RAM or in --cache DIR) or of an octree cache directory with the OpenCL renderer.
+// in RAM or in --cache DIR) or of an octree cache directory with the OpenCL renderer: a 3-D view
+// (VolumeRenderer), optionally with slice planes drawn in (DrawSlicePlanes), or an axis-aligned
+// slice (--slice, SliceRenderer).
+#include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
+#include <vector>
 
 #include "app/commands.h"
 #include "app/octree_loading.h"
@@ -19,6 +25,8 @@
 #include "render/device_octree.h"
 #include "render/program_cache.h"
 #include "render/render_params.h"
+#include "render/slice_overlay.h"
+#include "render/slice_renderer.h"
 #include "render/volume_renderer.h"
 #include "util/file_reading.h"
 #include "util/strings.h"
@@ -82,6 +90,63 @@ Status WriteBytes(const fs::path& path, const std::vector<uint8_t>& bytes) {
   return Status::Ok();
 }
 
+// One "AXIS[@POSITION_UM]" item of --slice or --slice-planes.
+struct AxisPosition {
+  int axis = 2;                       // 0 = x, 1 = y, 2 = z.
+  std::optional<double> position_um;  // Unset: the volume's centre along the axis.
+};
+
+constexpr std::array<const char*, 3> kAxisNames = {"x", "y", "z"};
+// Slice-plane line colours by axis: x red, y green, z blue.
+constexpr std::array<std::array<double, 3>, 3> kPlaneColours = {{{1, 0, 0}, {0, 1, 0}, {0, 0, 1}}};
+
+// "x", "y" or "z", optionally followed by "@" and a finite position in µm.
+Result<AxisPosition> ParseAxisPosition(std::string_view text, const std::string& flag) {
+  const auto bad = [&] {
+    return InvalidArgumentError(flag + ": expected AXIS[@POSITION_UM] with AXIS x, y or z, got '" +
+                                Printable(text) + "'");
+  };
+  const size_t at = text.find('@');
+  const std::string_view axis_text = text.substr(0, at);
+  AxisPosition out;
+  if (axis_text == "x") {
+    out.axis = 0;
+  } else if (axis_text == "y") {
+    out.axis = 1;
+  } else if (axis_text == "z") {
+    out.axis = 2;
+  } else {
+    return bad();
+  }
+  if (at != std::string_view::npos) {
+    const std::optional<double> position = ParseDouble(text.substr(at + 1));
+    // Also rejects "nan" and "inf", which from_chars accepts.
+    if (!position || !std::isfinite(*position)) return bad();
+    out.position_um = *position;
+  }
+  return out;
+}
+
+// A comma-separated, non-empty list of AXIS[@POSITION_UM] items.
+Result<std::vector<AxisPosition>> ParseSlicePlanes(std::string_view text) {
+  std::vector<AxisPosition> planes;
+  size_t begin = 0;
+  while (true) {
+    const size_t comma = text.find(',', begin);
+    OCTO_ASSIGN_OR_RETURN(AxisPosition plane,
+                          ParseAxisPosition(text.substr(begin, comma - begin), "--slice-planes"));
+    planes.push_back(plane);
+    if (comma == std::string_view::npos) break;
+    begin = comma + 1;
+  }
+  return planes;
+}
+
+// The item's position, or the centre of the volume box along its axis.
+double PositionOrCentre(const AxisPosition& item, const render::Box3& bounds) {
+  return item.position_um.value_or(bounds.Center()[item.axis]);
+}
+
 struct RenderOutcome {
   render::RenderImage image;
   render::FrameStats stats;
@@ -109,6 +174,98 @@ Result<RenderOutcome> RenderFullFrames(render::VolumeRenderer& renderer,
   return out;
 }
 
+Status EncodeAndWrite(const render::RenderImage& image, encode::ImageFormat format, int quality,
+                      const std::string& path) {
+  // PNG keeps the alpha channel (straight, as the format requires); JPEG shows the image over
+  // black.
+  const encode::Rgba8Image pixels = encode::ToRgba8(
+      image.rgba.data(), image.width, image.height,
+      format == encode::ImageFormat::kPng ? encode::AlphaMode::kStraight
+                                          : encode::AlphaMode::kOverBlack);
+  OCTO_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, format == encode::ImageFormat::kPng
+                                                        ? encode::EncodePng(pixels)
+                                                        : encode::EncodeJpeg(pixels, quality));
+  return WriteBytes(path, bytes);
+}
+
+// What RenderSlice needs from the command line and from RunRender's set-up.
+struct SliceJob {
+  AxisPosition slice;
+  std::optional<double> um_per_pixel;  // --slice-zoom; unset: the cross-section fitted.
+  int width = 0;
+  int height = 0;
+  double lod_bias = 0;
+  double budget_ms = 0;
+  int max_frames = kMaxFullFrames;
+  bool refine = false;
+  bool stats_json = false;
+  encode::ImageFormat format = encode::ImageFormat::kPng;
+  int quality = 90;
+  std::string out_path;
+  std::string input;
+  std::string device;         // DeviceInfo::ToString().
+  std::string octree_source;  // LoadedOctree::source.
+  std::chrono::steady_clock::time_point start;
+};
+
+// Renders, writes and reports the slice of `job` (the --slice path of RunRender); returns the exit
+// status. REQUIRES: the pointers valid for the call; params match the octree's channels.
+int RenderSlice(const SliceJob& job, const render::ComputeContext* context,
+                render::ProgramCache* programs, render::DeviceOctree* device_octree,
+                const render::Vec3& spacing, const render::RenderParams& params) {
+  auto renderer = render::SliceRenderer::Create(context, programs, device_octree, spacing);
+  if (!renderer.ok()) return Fail(job.input, renderer.status());
+  const double ms_load = MsSince(job.start);
+
+  // The plane at the given position or through the box's centre; the default fit unless zoomed.
+  render::SliceView view;
+  view.axis = job.slice.axis;
+  view.position_um = PositionOrCentre(job.slice, (*renderer)->bounds());
+  view.width = job.width;
+  view.height = job.height;
+  view.um_per_pixel = job.um_per_pixel;
+  // Frames repeat until every wanted brick is resident (the image is then exactly the level).
+  render::SliceOptions options;
+  options.lod_bias = job.lod_bias;
+  options.upload.max_ms = job.budget_ms;
+  options.converge = true;
+  options.max_frames = job.max_frames;
+  render::SliceStats stats;
+  const auto render_start = std::chrono::steady_clock::now();
+  auto image = (*renderer)->Render(view, params, options, &stats);
+  if (!image.ok()) return Fail(job.input, image.status());
+  const double ms_total = MsSince(render_start);
+
+  if (Status s = EncodeAndWrite(*image, job.format, job.quality, job.out_path); !s.ok()) {
+    return Fail(job.out_path, s);
+  }
+  if (job.stats_json) {
+    protocol::RenderReport report;
+    report.ms_total = ms_total;
+    report.ms_load = ms_load;  // ms_kernel and ms_upload are not measured apart for slices: 0.
+    report.passes = stats.frames;
+    report.bricks_uploaded = stats.bricks_uploaded;
+    report.samples = stats.samples;
+    report.requests = stats.requests;
+    report.finished_fraction = stats.converged ? 1 : 0;
+    report.final = stats.converged;
+    report.refine = job.refine;
+    report.width = job.width;
+    report.height = job.height;
+    report.mode = "slice";
+    report.projection = "ortho";
+    report.device = job.device;
+    report.octree = job.octree_source;
+    report.out = job.out_path;
+    report.slice_axis = kAxisNames[job.slice.axis];
+    report.slice_position_um = view.position_um;
+    report.um_per_pixel = render::ResolveSliceFrame(view, (*renderer)->bounds()).um_per_pixel;
+    report.level = stats.level;
+    std::printf("%s\n", protocol::RenderReportJson(report).c_str());
+  }
+  return kExitOk;
+}
+
 }  // namespace
 
 int RunRender(std::span<const std::string> args) {
@@ -117,8 +274,8 @@ int RunRender(std::span<const std::string> args) {
       "octoscope render INPUT|CACHE_DIR --out FILE.png|FILE.jpg [options]",
       "Renders one image of INPUT (any format of 'octoscope info'; its octree is built in RAM,\n"
       "or in --cache DIR and reused from there) or of an octree cache directory, with the\n"
-      "OpenCL ray caster. Camera and parameter files: docs/render_json.md; fields of\n"
-      "--stats-json: docs/cli.md.");
+      "OpenCL ray caster, or one axis-aligned slice of it (--slice). Camera and parameter\n"
+      "files: docs/render_json.md; fields of --stats-json and slice orientation: docs/cli.md.");
   flags.SetPositionals("INPUT|CACHE_DIR", 1, 1);
   flags.AddValue("out", "FILE", "output image, .png (RGBA) or .jpg/.jpeg (RGB over black)");
   flags.AddValue("size", "WxH", "image size in pixels", "512x512");
@@ -128,6 +285,14 @@ int RunRender(std::span<const std::string> args) {
   flags.AddValue("view", "x|y|z|iso|CAMERA.json", "standard view fitted to the volume, or a file",
                  "z");
   flags.AddSwitch("refine", "refinement ray casting until the image is final (else full frames)");
+  flags.AddValue("slice", "AXIS[@UM]",
+                 "render the slice normal to AXIS (x|y|z) at UM µm (default: the centre)\n"
+                 "                            instead of a 3-D view; --view does not apply");
+  flags.AddValue("slice-zoom", "UM_PER_PIXEL", "pixel size of --slice",
+                 "the volume's cross-section fitted");
+  flags.AddValue("slice-planes", "AXIS[@UM],...",
+                 "draw these slice planes into the 3-D view (x red, y green, z blue;\n"
+                 "                            UM default: the centre)");
   flags.AddValue("params", "PARAMS.json", "render parameters", "grey full-range channels");
   flags.AddSwitch("stats-json", "print one JSON line of statistics on stdout");
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
@@ -190,6 +355,34 @@ int RunRender(std::span<const std::string> args) {
   auto open_options = VolumeOptionsFromFlags(flags);
   if (!open_options.ok()) return Usage(open_options.status().message(), flags);
   const bool refine = flags.Has("refine");
+  std::optional<AxisPosition> slice;
+  if (auto text = flags.Get("slice")) {
+    auto parsed = ParseAxisPosition(*text, "--slice");
+    if (!parsed.ok()) return Usage(parsed.status().message(), flags);
+    slice = *parsed;
+    if (flags.Has("view")) {
+      return Usage("--slice renders a slice instead of a 3-D view: drop --view", flags);
+    }
+    if (flags.Has("slice-planes")) {
+      return Usage("--slice-planes draws into 3-D views: it cannot be used with --slice", flags);
+    }
+  }
+  std::optional<double> slice_zoom;
+  if (flags.Has("slice-zoom")) {
+    if (!slice) return Usage("--slice-zoom needs --slice", flags);
+    auto zoom = flags.GetDouble("slice-zoom", 1);
+    if (!zoom.ok()) return Usage(zoom.status().message(), flags);
+    if (!(*zoom > 0 && std::isfinite(*zoom))) {
+      return Usage("--slice-zoom must be a positive number of µm per pixel", flags);
+    }
+    slice_zoom = *zoom;
+  }
+  std::vector<AxisPosition> plane_items;
+  if (auto text = flags.Get("slice-planes")) {
+    auto parsed = ParseSlicePlanes(*text);
+    if (!parsed.ok()) return Usage(parsed.status().message(), flags);
+    plane_items = std::move(*parsed);
+  }
   const std::string& input = flags.positionals()[0];
 
   // 2. The JSON files are read (not yet parsed: the defaults depend on the volume) up front, so a
@@ -200,7 +393,7 @@ int RunRender(std::span<const std::string> args) {
     if (!text.ok()) return Fail(*path, text.status());
     params_text = std::move(*text);
   }
-  if (!standard_view) {
+  if (!slice && !standard_view) {
     auto text = ReadSmallFile(view, protocol::kMaxRenderJsonBytes);
     if (!text.ok()) return Fail(view, text.status());
     camera_text = std::move(*text);
@@ -229,12 +422,19 @@ int RunRender(std::span<const std::string> args) {
   }
   if (step) params.step_voxels = *step;
   const render::Vec3 spacing = render::PhysicalSpacing(info);
-  Result<render::Camera> camera =
-      standard_view
-          ? render::Camera::Standard(*standard_view, *projection,
-                                     render::PhysicalBounds(info.size, spacing), width, height)
-          : protocol::ParseCameraJson(*camera_text, *projection, width, height);
-  if (!camera.ok()) return Fail(standard_view ? input : view, camera.status());
+  const render::Box3 bounds = render::PhysicalBounds(info.size, spacing);
+  std::optional<render::Camera> camera;  // A 3-D view's; a slice has none.
+  if (!slice) {
+    Result<render::Camera> made =
+        standard_view ? render::Camera::Standard(*standard_view, *projection, bounds, width, height)
+                      : protocol::ParseCameraJson(*camera_text, *projection, width, height);
+    if (!made.ok()) return Fail(standard_view ? input : view, made.status());
+    camera = std::move(*made);
+  }
+  std::vector<render::SlicePlane> planes;
+  for (const AxisPosition& item : plane_items) {
+    planes.push_back({item.axis, PositionOrCentre(item, bounds), kPlaneColours[item.axis]});
+  }
 
   // 5. The device, the octree mirrored on it, the renderer.
   auto device = render::ChooseDevice(flags.Get("device").value_or("auto"));
@@ -250,6 +450,27 @@ int RunRender(std::span<const std::string> args) {
   device_options.brick_buffer_bytes = static_cast<uint64_t>(*brick_buffer_mb) << 20;
   auto device_octree = render::DeviceOctree::Create(&*context, &tree.octree(), device_options);
   if (!device_octree.ok()) return Fail(device->name, device_octree.status());
+  // 6a. A slice view: its own renderer, frames until converged, written and reported there.
+  if (slice) {
+    SliceJob job;
+    job.slice = *slice;
+    job.um_per_pixel = slice_zoom;
+    job.width = width;
+    job.height = height;
+    job.lod_bias = *lod_bias;
+    job.budget_ms = static_cast<double>(*budget_ms);
+    job.max_frames = *max_passes > 0 ? static_cast<int>(*max_passes) : kMaxFullFrames;
+    job.refine = refine;
+    job.stats_json = flags.Has("stats-json");
+    job.format = *format;
+    job.quality = static_cast<int>(*quality);
+    job.out_path = *out_path;
+    job.input = input;
+    job.device = device->ToString();
+    job.octree_source = tree.source;
+    job.start = start;
+    return RenderSlice(job, &*context, &programs, device_octree->get(), spacing, params);
+  }
   auto renderer =
       render::VolumeRenderer::Create(&*context, &programs, device_octree->get(), spacing);
   if (!renderer.ok()) return Fail(device->name, renderer.status());
@@ -278,14 +499,16 @@ int RunRender(std::span<const std::string> args) {
   if (!outcome.ok()) return Fail(input, outcome.status());
   const double ms_total = MsSince(render_start);
 
-  // 7. Encode and write.
-  const render::RenderImage& image = outcome->image;
-  const encode::Rgba8Image pixels = encode::ToRgba8(image.rgba.data(), image.width, image.height);
-  auto bytes = *format == encode::ImageFormat::kPng
-                   ? encode::EncodePng(pixels)
-                   : encode::EncodeJpeg(pixels, static_cast<int>(*quality));
-  if (!bytes.ok()) return Fail(*out_path, bytes.status());
-  if (Status s = WriteBytes(*out_path, *bytes); !s.ok()) return Fail(*out_path, s);
+  // 7. The slice planes over the finished image (an overlay: the volume does not hide them).
+  render::RenderImage& image = outcome->image;
+  if (Status s = render::DrawSlicePlanes(&image, *camera, bounds, planes); !s.ok()) {
+    return Fail(input, s);
+  }
+
+  // 8. Encode and write.
+  if (Status s = EncodeAndWrite(image, *format, static_cast<int>(*quality), *out_path); !s.ok()) {
+    return Fail(*out_path, s);
+  }
 
   if (flags.Has("stats-json")) {
     const render::FrameStats& s = outcome->stats;
@@ -308,6 +531,7 @@ int RunRender(std::span<const std::string> args) {
     report.device = device->ToString();
     report.octree = tree.source;
     report.out = *out_path;
+    report.slice_planes = static_cast<int>(planes.size());
     std::printf("%s\n", protocol::RenderReportJson(report).c_str());
   }
   return kExitOk;

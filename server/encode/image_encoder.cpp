@@ -111,14 +111,21 @@ Status ValidateImage(const Rgba8Image& image) {
   return Status::Ok();
 }
 
-Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height) {
+Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height, AlphaMode mode) {
   Rgba8Image image;
   image.width = width;
   image.height = height;
   const size_t count = static_cast<size_t>(std::max(width, 0)) * std::max(height, 0) * 4;
   image.pixels.resize(count);
-  // Premultiplied colour is already the colour over black; alpha is kept as is.
-  for (size_t i = 0; i < count; ++i) image.pixels[i] = ToByte(rgba_premultiplied[i]);
+  for (size_t i = 0; i < count; i += 4) {
+    const float* p = rgba_premultiplied + i;
+    // Premultiplied colour is already the colour over black; straight colour divides by alpha.
+    const float alpha = p[3];
+    const float scale =
+        mode == AlphaMode::kOverBlack ? 1.0f : (alpha > 0 && alpha < 1 ? 1.0f / alpha : 1.0f);
+    for (int k = 0; k < 3; ++k) image.pixels[i + k] = ToByte(p[k] * scale);
+    image.pixels[i + 3] = ToByte(alpha);
+  }
   return image;
 }
 

@@ -1,11 +1,13 @@
 // Image encoding: turns a rendered RGBA float image into 8-bit pixels and those into PNG or JPEG
 // files (bytes in memory), for `octoscope render` and the browser server.
 //
-// Pixel convention: the renderer's pixels are premultiplied RGBA floats in [0, 1]. Rgba8Image
-// keeps the colour premultiplied, i.e. the image composited over black (what a viewer shows on a
-// black background, the usual microscopy display), and the alpha as is; each component is
-// round(clamp(v, 0, 1) * 255) (NaN counts as 0). PNG stores all four components (colour type 6,
-// 8 bits); JPEG has no alpha and stores the RGB components (composited over black).
+// Pixel convention: the renderer's pixels are premultiplied RGBA floats in [0, 1]. ToRgba8 makes
+// either kind of 8-bit pixel, each component round(clamp(v, 0, 1) * 255) (NaN counts as 0):
+//  * AlphaMode::kStraight: colour divided by alpha (0 where alpha is 0) — what PNG requires
+//    (colour type 6 stores straight, "unassociated" alpha), so any viewer composites it right;
+//  * AlphaMode::kOverBlack: the colour kept premultiplied, i.e. composited over black (the usual
+//    microscopy display) — what JPEG, which has no alpha, stores.
+// EncodePng stores all four components as given (8 bits); EncodeJpeg stores R, G, B.
 //
 // Invariant of a valid Rgba8Image: 1 <= width, height <= kMaxEncodeSize and
 // pixels.size() == width * height * 4 (row 0 at the top, x fastest, R G B A per pixel).
@@ -35,9 +37,11 @@ struct Rgba8Image {
 // Checks the invariant above; kInvalidArgument naming what is wrong.
 Status ValidateImage(const Rgba8Image& image);
 
+enum class AlphaMode { kStraight, kOverBlack };
+
 // Converts `width` x `height` premultiplied RGBA float pixels (4 floats each) as described above.
 // REQUIRES: width, height >= 0; rgba_premultiplied points at width * height * 4 floats.
-Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height);
+Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height, AlphaMode mode);
 
 // A PNG file (RGBA, 8 bits per sample, non-interlaced; per row the filter among the five PNG
 // filters with the smallest sum of absolute residuals; zlib-compressed IDAT chunks of at most

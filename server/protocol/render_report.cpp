@@ -24,6 +24,13 @@ std::string RenderReportJson(const RenderReport& r) {
   j["finished_fraction"] = r.finished_fraction;
   j["octree"] = r.octree;
   j["out"] = r.out;
+  if (!r.slice_axis.empty()) {
+    j["slice_axis"] = r.slice_axis;
+    j["slice_position_um"] = r.slice_position_um;
+    j["um_per_pixel"] = r.um_per_pixel;
+    j["level"] = r.level;
+  }
+  if (r.slice_planes > 0) j["slice_planes"] = r.slice_planes;
   // Device names may hold bytes that are not UTF-8: replace rather than throw.
   return j.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace);
 }

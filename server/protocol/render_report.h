@@ -1,5 +1,5 @@
 // RenderReport: the JSON line `octoscope render --stats-json` prints when it ends (fields in
-// docs/cli.md).
+// docs/cli.md): the same keys for 3-D views and slice views, plus the slice's own keys.
 //
 // Thread safety: pure functions.
 #ifndef OCTOSCOPE_PROTOCOL_RENDER_REPORT_H_
@@ -24,11 +24,18 @@ struct RenderReport {
   bool refine = false;           // --refine.
   int width = 0;
   int height = 0;
-  std::string mode;        // "dvr", "mip", "minip".
+  std::string mode;        // "dvr", "mip", "minip"; "slice" for a slice view.
   std::string projection;  // "ortho", "perspective".
   std::string device;      // DeviceInfo::ToString().
   std::string octree;      // "memory", "cache" (reused), "built-cache".
   std::string out;         // Output file.
+  // A slice view (--slice): its axis ("x", "y", "z"; empty for a 3-D view, and then the fields
+  // below are not printed), plane position, pixel size and the level of detail sampled.
+  std::string slice_axis;
+  double slice_position_um = 0;
+  double um_per_pixel = 0;
+  int level = 0;
+  int slice_planes = 0;  // Slice planes drawn into a 3-D view (--slice-planes); printed if > 0.
 };
 
 std::string RenderReportJson(const RenderReport& report);

@@ -48,11 +48,21 @@ TEST(ToRgba8Test, RoundsClampsAndKeepsPremultipliedColour) {
   const float inf = std::numeric_limits<float>::infinity();
   // Two pixels: a half-transparent premultiplied colour, and out-of-range / non-finite values.
   const std::vector<float> rgba = {0.25f, 0.5f, 0.0f, 0.5f, -0.1f, 1.7f, nan, inf};
-  const Rgba8Image image = ToRgba8(rgba.data(), 2, 1);
+  const Rgba8Image image = ToRgba8(rgba.data(), 2, 1, AlphaMode::kOverBlack);
   ASSERT_EQ(image.width, 2);
   ASSERT_EQ(image.height, 1);
   // round(0.25 * 255) = 64 (63.75), round(0.5 * 255) = 128 (127.5 rounds half away from zero).
   EXPECT_EQ(image.pixels, (std::vector<uint8_t>{64, 128, 0, 128, 0, 255, 0, 255}));
+}
+
+// PNG needs straight alpha: premultiplied (0.25, 0.5, 0, 0.5) is the colour (0.5, 1, 0) at 50 %;
+// a fully transparent pixel has no colour; an opaque one is unchanged.
+TEST(ToRgba8Test, StraightAlphaDividesTheColourByAlpha) {
+  const std::vector<float> rgba = {0.25f, 0.5f, 0.0f, 0.5f,  0.0f, 0.0f, 0.0f, 0.0f,
+                                   0.2f,  0.4f, 0.6f, 1.0f,  0.1f, 0.0f, 0.0f, 0.2f};
+  const Rgba8Image image = ToRgba8(rgba.data(), 4, 1, AlphaMode::kStraight);
+  EXPECT_EQ(image.pixels, (std::vector<uint8_t>{128, 255, 0, 128, 0, 0, 0, 0,  //
+                                                51, 102, 153, 255, 128, 0, 0, 51}));
 }
 
 TEST(ToRgba8Test, EveryByteValueIsReachableFromItsOwnFraction) {
@@ -60,7 +70,7 @@ TEST(ToRgba8Test, EveryByteValueIsReachableFromItsOwnFraction) {
   for (int v = 0; v < 256; ++v) {
     for (int c = 0; c < 4; ++c) rgba[v * 4 + c] = v / 255.0f;
   }
-  const Rgba8Image image = ToRgba8(rgba.data(), 256, 1);
+  const Rgba8Image image = ToRgba8(rgba.data(), 256, 1, AlphaMode::kOverBlack);
   for (int v = 0; v < 256; ++v) {
     for (int c = 0; c < 4; ++c) ASSERT_EQ(image.pixels[v * 4 + c], v) << v;
   }
