@@ -43,7 +43,13 @@ Result<json> ParseObject(std::string_view text, std::string_view what) {
   }
   json doc;
   try {
-    doc = json::parse(text.begin(), text.end());
+    // Hostile nesting is refused while parsing: no valid document nests deeper than a LUT
+    // (object > array > array > number), and deep trees cost recursion elsewhere (dump()).
+    const json::parser_callback_t limit_depth = [](int depth, json::parse_event_t, json&) {
+      if (depth > kMaxRenderJsonDepth) throw std::length_error("nested too deeply");
+      return true;
+    };
+    doc = json::parse(text.begin(), text.end(), limit_depth);
   } catch (const std::exception& e) {
     // e.what() names the position; it may quote the input, so it is shortened.
     return InvalidArgumentError(std::string(what) +
@@ -164,7 +170,8 @@ Result<std::array<volume::Rgba, render::kLutEntries>> GetLut(const json& j,
       if (!v.is_number_integer() || v.get<int64_t>() < 0 || v.get<int64_t>() > 255 ||
           (v.is_number_unsigned() && v.get<uint64_t>() > 255)) {
         return FieldError(Index(entry, k),
-                          "must be an integer in 0..255, got " + Printable(v.dump(), 40));
+                          "must be an integer in 0..255, got " +
+                              (v.is_primitive() ? Printable(v.dump(), 40) : TypeOf(v)));
       }
       c[k] = static_cast<uint8_t>(v.get<int64_t>());
     }

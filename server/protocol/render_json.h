@@ -32,6 +32,8 @@ namespace octoscope::protocol {
 
 // Documents larger than this are refused unparsed (a LUT per channel is ~4 KiB of JSON).
 inline constexpr uint64_t kMaxRenderJsonBytes = uint64_t{4} << 20;
+// Deepest nesting accepted (the documents need 4); deeper input is refused while parsing.
+inline constexpr int kMaxRenderJsonDepth = 16;
 // A sanity limit on "channels" (the volume's channel count must match anyway).
 inline constexpr int kMaxRenderJsonChannels = 1024;
 

@@ -36,8 +36,8 @@ uint64_t MaxBrickNodes(const octree::BrickGeometry& geometry) {
 // All state of a DeviceOctree. Invariants:
 //  * live[id] == 1 exactly for the ids whose entry in `mirror` encodes a node (written from a
 //    snapshot of a live node); every other entry is all zero.
-//  * An entry's child group g is non-zero only when live[8g .. 8g+7] are all 1, and then
-//    group_owner[g] is that entry's id.
+//  * An entry's child group g is non-zero only when live[8g .. 8g+7] are all 1 with
+//    key_of[8g + o] == ChildKey(entry's key, o), and then group_owner[g] is that entry's id.
 //  * slot_of[id] == s  <=>  slot_node[s] == id; such an id is live and its entry has in_buffer
 //    set with slot s. Free slots are in free_slots and have slot_node == kNoNode.
 struct DeviceOctree::Impl {
@@ -51,6 +51,7 @@ struct DeviceOctree::Impl {
   // --- Node buffer. ---
   std::vector<uint32_t> mirror;  // capacity_nodes() * words.
   std::vector<uint8_t> live;     // Per node id.
+  std::vector<octree::NodeKey> key_of;  // Per node id: the key its live entry was written for.
   ClMem node_buffer;
   bool realloc_nodes = true;  // The device buffer must be (re)created from the whole mirror.
   std::vector<uint32_t> dirty;
@@ -101,6 +102,7 @@ struct DeviceOctree::Impl {
     const uint64_t nodes = std::min<uint64_t>(groups * 8, uint64_t{kNoNode} + 1);
     mirror.resize(nodes * words, 0);
     live.resize(nodes, 0);
+    key_of.resize(nodes);
     is_dirty.resize(nodes, 0);
     realloc_nodes = true;
   }
@@ -165,9 +167,14 @@ struct DeviceOctree::Impl {
     }
     uint32_t group = snap.child_group;
     if (group != 0) {
-      // Point at the group only once all 8 children are written in the mirror.
+      // Point at the group only once all 8 children are written in the mirror AS THIS NODE'S
+      // children: a reused group whose old children's deletions are not drained yet still looks
+      // live, but for another parent's keys.
       bool all_live = uint64_t{group} * 8 + 7 < capacity_nodes();
-      for (uint32_t o = 0; all_live && o < 8; ++o) all_live = live[group * 8 + o] != 0;
+      for (uint32_t o = 0; all_live && o < 8; ++o) {
+        all_live = live[group * 8 + o] != 0 &&
+                   key_of[group * 8 + o] == octree::ChildKey(snap.key, static_cast<int>(o));
+      }
       if (!all_live) group = 0;
     }
     if (group == 0 && snap.child_group != 0) {
@@ -197,6 +204,7 @@ struct DeviceOctree::Impl {
     // Cannot fail: the entry has NodeWords(channels) words and the group is a 30-bit index.
     (void)octree::EncodeNode(node, Entry(id));
     live[id] = 1;
+    key_of[id] = snap.key;
     MarkDirty(id);
   }
 
@@ -356,6 +364,7 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
     if (!snap.has_value()) continue;  // Deleted while we walk: its event follows.
     m.EnsureCapacity(snap->id);
     m.live[snap->id] = 1;
+    m.key_of[snap->id] = snap->key;
     m.todo.insert(snap->id);
     if (snap->has_children()) {
       for (uint32_t o = 0; o < 8; ++o) queue.push_back(snap->child_group * 8 + o);
@@ -395,6 +404,7 @@ Status DeviceOctree::Sync(SyncStats* stats) {
       }
     }
     m.live[id] = 1;
+    m.key_of[id] = snap->key;
     m.todo.insert(id);
     m.snapshots.insert_or_assign(id, std::move(*snap));
   }
@@ -457,6 +467,7 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
     int level;
     octree::NodeKey key;
     bool stale;
+    bool ancestor = false;  // Added as part of a requested node's chain, not requested itself.
   };
   const auto uploadable = [&m](const octree::NodeSnapshot& snap) {
     return snap.id < m.capacity_nodes() && m.live[snap.id] != 0 && snap.has_brick() &&
@@ -479,11 +490,43 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       std::optional<octree::NodeSnapshot> parent = octree_->GetNode(key);
       if (!parent.has_value() || !walked.insert(parent->id).second) break;
       if (uploadable(*parent) && added.insert(parent->id).second) {
-        items.push_back(Item{parent->id, parent->key.level, parent->key, false});
+        items.push_back(Item{parent->id, parent->key.level, parent->key, false, true});
       }
     }
   }
+  // Eviction candidates, computed once: occupied slots older than protect_frame, least recently
+  // used first, at equal stamps finer levels first.
+  std::vector<uint32_t> victims;
+  for (uint32_t slot = 0; slot < slot_count_; ++slot) {
+    if (m.slot_node[slot] != kNoNode && m.slot_used[slot] < budget.protect_frame) {
+      victims.push_back(slot);
+    }
+  }
+  std::sort(victims.begin(), victims.end(), [&m](uint32_t a, uint32_t b) {
+    return std::tie(m.slot_used[a], m.slot_key[a].level, a) <
+           std::tie(m.slot_used[b], m.slot_key[b].level, b);
+  });
+  // When the chains do not fit the slots that can be filled (free or evictable), requested nodes
+  // come before their ancestors: otherwise a ray front needing more bricks than the buffer has
+  // would fill it with ancestors pass after pass and never get a requested brick (no progress).
+  // The coarsest ancestors keep whatever room is left.
+  const uint64_t room = m.free_slots.size() + victims.size();
   s.requested = items.size();
+  if (items.size() > room) {
+    std::vector<Item> ancestors;
+    std::vector<Item> wanted;
+    for (const Item& item : items) (item.ancestor ? ancestors : wanted).push_back(item);
+    std::sort(ancestors.begin(), ancestors.end(), [](const Item& a, const Item& b) {
+      return std::tie(b.level, a.id) < std::tie(a.level, b.id);
+    });
+    const size_t keep = room > wanted.size() ? static_cast<size_t>(room - wanted.size()) : 0;
+    if (ancestors.size() > keep) {
+      s.deferred += ancestors.size() - keep;
+      ancestors.resize(keep);
+    }
+    items = std::move(wanted);
+    items.insert(items.end(), ancestors.begin(), ancestors.end());
+  }
   // Coarse first (higher level), then by id.
   std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) {
     return std::tie(b.level, a.id) < std::tie(a.level, b.id);
@@ -497,18 +540,6 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
   }
   order.insert(order.end(), items.begin(), items.end());
 
-  // Eviction candidates, computed once: occupied slots older than protect_frame, least recently
-  // used first, at equal stamps finer levels first.
-  std::vector<uint32_t> victims;
-  for (uint32_t slot = 0; slot < slot_count_; ++slot) {
-    if (m.slot_node[slot] != kNoNode && m.slot_used[slot] < budget.protect_frame) {
-      victims.push_back(slot);
-    }
-  }
-  std::sort(victims.begin(), victims.end(), [&m](uint32_t a, uint32_t b) {
-    return std::tie(m.slot_used[a], m.slot_key[a].level, a) <
-           std::tie(m.slot_used[b], m.slot_key[b].level, b);
-  });
   size_t next_victim = 0;
   std::vector<uint8_t> filled_now(slot_count_, 0);
 

@@ -29,7 +29,9 @@
 //
 // Upload manager (Upload): given requested node ids, it adds each one's ancestors that own a
 // brick but are not resident (the "chain"), orders the set COARSE FIRST (higher level first,
-// then by id), and uploads as many as the budget allows (time, measured around the blocking
+// then by id) — except that when the set exceeds the slots that can be filled (free or
+// evictable), the requested nodes are kept and only the coarsest ancestors that still fit (so a
+// ray front larger than the buffer always progresses) — and uploads as many as the budget allows (time, measured around the blocking
 // writes, and an optional brick count). A free slot is used first; else the least recently used
 // slot (oldest slot_used stamp, coarse levels evicted last at equal stamps) whose stamp is older
 // than `protect_frame` — bricks the in-flight frame sampled are never evicted, and a brick

@@ -225,7 +225,30 @@ void RenderService::Run(std::function<void(Status)> init) {
       work_cv_.wait(lock, [&] { return stop_ || PickLocked(jobs, &step); });
       if (stop_) break;
     }
-    Execute(devices, jobs, step);
+    // Exceptions never leave the render thread: one that escapes a frame (e.g. bad_alloc for an
+    // absurd image) ends that view's request with an error, and the thread keeps serving.
+    const ViewId view = step.view;
+    const Job* job = step.new_job ? step.new_job.get()
+                                  : (jobs.count(view) != 0 ? jobs.at(view).get() : nullptr);
+    std::shared_ptr<FrameCallback> callback = job != nullptr ? job->callback : nullptr;
+    FrameResult failed;
+    failed.view = view;
+    failed.final = true;
+    if (job != nullptr) {
+      failed.sequence = job->request.sequence;
+      failed.kind = job->request.kind;
+    }
+    try {
+      Execute(devices, jobs, step);
+    } catch (const std::exception& e) {
+      failed.status = InternalError(std::string("rendering failed: ") + e.what());
+    } catch (...) {
+      failed.status = InternalError("rendering failed: unknown exception");
+    }
+    if (!failed.status.ok()) {
+      jobs.erase(view);
+      if (callback != nullptr) Deliver(view, callback, std::move(failed));
+    }
   }
   // Shutdown: drop every job (no callbacks), then the renderers before the device octree.
   jobs.clear();

@@ -203,7 +203,12 @@ Result<RenderImage> SliceRenderer::Render(const SliceView& view, const RenderPar
     setup.box_hi[a] = static_cast<float>(box.hi[a]);
     setup.inv_spacing[a] = static_cast<float>(1.0 / spacing_[a]);
   }
-  for (int k = 0; k < 4; ++k) setup.background[k] = static_cast<float>(params.background[k]);
+  // Output pixels are premultiplied (render_params.h's background is straight RGBA).
+  const double background_alpha = params.background[3];
+  for (int k = 0; k < 3; ++k) {
+    setup.background[k] = static_cast<float>(params.background[k] * background_alpha);
+  }
+  setup.background[3] = static_cast<float>(background_alpha);
   setup.width = view.width;
   setup.height = view.height;
   setup.level = level;

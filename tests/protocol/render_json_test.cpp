@@ -274,6 +274,27 @@ TEST(RenderParamsJsonTest, ErrorsAreInvalidArgumentNamingTheFieldPath) {
 // Deterministic mutation fuzz: byte flips, insertions, deletions and truncations of valid
 // documents either parse (to valid parameters / a camera) or fail with kInvalidArgument; they
 // never crash or throw.
+// A 2 MB document nesting a million arrays where a LUT entry belongs used to overflow the stack
+// while the error message printed the value; nesting is now refused while parsing.
+TEST(RenderJsonFuzzTest, DeepNestingIsRefusedNotACrash) {
+  const size_t depth = 1'000'000;
+  std::string text = R"({"channels": [{"lut": [)";
+  text.append(depth, '[');
+  text.append(depth, ']');
+  text += "]}, {}]}";
+  Result<RenderParams> parsed = ParseRenderParamsJson(text, Defaults(2));
+  ASSERT_FALSE(parsed.ok());
+  EXPECT_EQ(parsed.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(parsed.status().message().find("nested too deeply"), std::string::npos)
+      << parsed.status().ToString();
+  // Depth within the limit still parses (or fails for its content, not its depth).
+  Result<RenderParams> shallow =
+      ParseRenderParamsJson(R"({"channels": [{"lut": [[[[1]]]]}, {}]})", Defaults(2));
+  ASSERT_FALSE(shallow.ok());
+  EXPECT_NE(shallow.status().message().find("channels[0].lut"), std::string::npos)
+      << shallow.status().ToString();
+}
+
 TEST(RenderJsonFuzzTest, MutatedDocumentsParseOrFailCleanly) {
   RenderParams p = Defaults(2);
   p.channels[1].lut.emplace();

@@ -95,7 +95,10 @@ RenderImage ExpectedSlice(const ReferenceVolume& ref, const RenderParams& params
       };
       float* out = img.rgba.data() + (static_cast<size_t>(py) * width + px) * 4;
       if (!inside(p)) {
-        for (int k = 0; k < 4; ++k) out[k] = static_cast<float>(params.background[k]);
+        // The background is straight RGBA; images are premultiplied.
+        const double a = params.background[3];
+        for (int k = 0; k < 3; ++k) out[k] = static_cast<float>(params.background[k] * a);
+        out[3] = static_cast<float>(a);
         continue;
       }
       std::array<double, 3> rgb{0, 0, 0};
@@ -472,7 +475,19 @@ TEST(SliceRendererTest, DefaultsAndPlaneOutsideVolume) {
   auto outside = s->renderer->Render(view, params, {}, &stats);
   ASSERT_TRUE(outside.ok());
   EXPECT_EQ(stats.last_samples, 0u);
-  for (int i = 0; i < 32 * 32; ++i) EXPECT_EQ(outside->rgba[4 * i], 0.5f);
+  // The background (straight RGBA, alpha 0 here) appears premultiplied: transparent black.
+  for (int i = 0; i < 32 * 32; ++i) {
+    EXPECT_EQ(outside->rgba[4 * i], 0.0f);
+    EXPECT_EQ(outside->rgba[4 * i + 3], 0.0f);
+  }
+  params.background = {0.5, 0.25, 0, 0.5};
+  outside = s->renderer->Render(view, params, {}, &stats);
+  ASSERT_TRUE(outside.ok());
+  for (int i = 0; i < 32 * 32; ++i) {
+    EXPECT_EQ(outside->rgba[4 * i], 0.25f);
+    EXPECT_EQ(outside->rgba[4 * i + 1], 0.125f);
+    EXPECT_EQ(outside->rgba[4 * i + 3], 0.5f);
+  }
 }
 
 TEST(SliceRendererTest, RejectsInvalidInput) {
