@@ -83,39 +83,69 @@ OctoNodeHit OctoFindNode(__global const uint* nodes, OctoTreeGeometry g, float3 
   return hit;
 }
 
-/* Trilinear sample of channel c at p from the stored brick in `slot` of the level-`level` node
- * `index`. REQUIRES: p inside that node's interior (then the footprint lies in the stored box). */
-float OctoSampleBrick(__global const ushort* bricks, OctoTreeGeometry g, uint slot, int4 index,
-                      int level, float3 p, int c) {
+/* The channel-independent part of a trilinear brick read: the offset of the lower corner voxel
+ * (channel 0) in the stored brick, the strides and the weights. */
+typedef struct OctoTrilinear {
+  uint o;
+  uint dx;
+  uint dy;
+  uint dz;
+  float3 f;
+} OctoTrilinear;
+
+/* The trilinear footprint of p in the stored brick of the level-`level` node `index`. 32-bit
+ * offsets inside the brick: a stored brick holds at most 258^3 * 64 < 2^32 samples.
+ * REQUIRES: p inside that node's interior (then the footprint lies in the stored box). */
+OctoTrilinear OctoTrilinearAt(OctoTreeGeometry g, int4 index, int level, float3 p) {
   const int3 bs = OctoBrickSize(g);
   /* Brick-local coordinates of p in units of level voxels, relative to the stored box's corner
    * (interior origin - 1) and shifted by half a voxel, so the voxel centres are integers. */
   const float3 brick_pos = p * ldexp(1.0f, -level) + 0.5f - convert_float3(index.xyz * bs);
   const float3 floor_local = floor(brick_pos);
   const int3 i0 = clamp(convert_int3(floor_local), (int3)(0), bs);
-  const float3 f = clamp(brick_pos - floor_local, 0.0f, 1.0f);
+  OctoTrilinear t;
+  t.f = clamp(brick_pos - floor_local, 0.0f, 1.0f);
+  const uint channels = (uint)g.channels;
+  const uint sx = (uint)(bs.x + 2);
+  const uint sy = (uint)(bs.y + 2);
+  t.dx = channels;
+  t.dy = sx * channels;
+  t.dz = sx * sy * channels;
+  t.o = (((uint)i0.z * sy + (uint)i0.y) * sx + (uint)i0.x) * channels;
+  return t;
+}
 
-  const ulong channels = (ulong)g.channels;
-  const ulong sx = (ulong)(bs.x + 2);
-  const ulong sy = (ulong)(bs.y + 2);
-  const ulong dx = channels;
-  const ulong dy = sx * channels;
-  const ulong dz = sx * sy * channels;
-  const ulong o = (ulong)slot * OctoBrickSamples(g) + (ulong)c +
-                  (((ulong)i0.z * sy + (ulong)i0.y) * sx + (ulong)i0.x) * channels;
-  const float v000 = (float)bricks[o];
-  const float v100 = (float)bricks[o + dx];
-  const float v010 = (float)bricks[o + dy];
-  const float v110 = (float)bricks[o + dy + dx];
-  const float v001 = (float)bricks[o + dz];
-  const float v101 = (float)bricks[o + dz + dx];
-  const float v011 = (float)bricks[o + dz + dy];
-  const float v111 = (float)bricks[o + dz + dy + dx];
-  const float v00 = mix(v000, v100, f.x);
-  const float v10 = mix(v010, v110, f.x);
-  const float v01 = mix(v001, v101, f.x);
-  const float v11 = mix(v011, v111, f.x);
-  return mix(mix(v00, v10, f.y), mix(v01, v11, f.y), f.z);
+/* Channel c of the trilinear read `t` from the stored brick starting at `brick`. */
+float OctoTrilinearRead(__global const ushort* brick, OctoTrilinear t, int c) {
+  const uint o = t.o + (uint)c;
+  const float v000 = (float)brick[o];
+  const float v100 = (float)brick[o + t.dx];
+  const float v010 = (float)brick[o + t.dy];
+  const float v110 = (float)brick[o + t.dy + t.dx];
+  const float v001 = (float)brick[o + t.dz];
+  const float v101 = (float)brick[o + t.dz + t.dx];
+  const float v011 = (float)brick[o + t.dz + t.dy];
+  const float v111 = (float)brick[o + t.dz + t.dy + t.dx];
+  const float v00 = mix(v000, v100, t.f.x);
+  const float v10 = mix(v010, v110, t.f.x);
+  const float v01 = mix(v001, v101, t.f.x);
+  const float v11 = mix(v011, v111, t.f.x);
+  return mix(mix(v00, v10, t.f.y), mix(v01, v11, t.f.y), t.f.z);
+}
+
+/* Trilinear sample of channel c at p from the stored brick starting at `brick` (its first sample)
+ * of the level-`level` node `index`. REQUIRES: as OctoTrilinearAt. */
+float OctoSampleBrickAt(__global const ushort* brick, OctoTreeGeometry g, int4 index, int level,
+                        float3 p, int c) {
+  return OctoTrilinearRead(brick, OctoTrilinearAt(g, index, level, p), c);
+}
+
+/* Trilinear sample of channel c at p from the stored brick in `slot` of the level-`level` node
+ * `index` (64-bit slot offset: a buffer may hold more than 2^32 samples). REQUIRES: as
+ * OctoSampleBrickAt. */
+float OctoSampleBrick(__global const ushort* bricks, OctoTreeGeometry g, uint slot, int4 index,
+                      int level, float3 p, int c) {
+  return OctoSampleBrickAt(bricks + (ulong)slot * OctoBrickSamples(g), g, index, level, p, c);
 }
 
 /* Channel c at p as represented by `hit` (from OctoFindNode for the same p). */

@@ -6,13 +6,15 @@
  * (0: full frame, one pass, missing bricks replaced by coarser data; 1: refinement, a ray pauses
  * at the first sample whose wanted brick is missing and resumes in the next pass).
  *
- * Per ray: clip [t_min, inf) to the box [0, n] and the planes (as ClipRayToVolume), walk
- * segments of `step` voxels (arc length in voxel space) whose midpoints are entry + (i + 0.5) dt
- * (the last segment shortened to the exit), never accumulated. Per sample: the level of detail
- * from the pixel footprint; per enabled channel: its transformed position (outside the box: no
- * sample), clamped into the valid extent of the level (so clamp-to-edge equals the reference's
- * and no virtual voxel is read), the octree node (OctoFindNode), trilinear brick sample or node
- * average, transfer function, compositing.
+ * Per ray: clip [t_min, inf) to the box [0, n] and the planes (as ClipRayToVolume); the level of
+ * detail from the pixel footprint (orthographic: one level; perspective: bands of constant level,
+ * split where the footprint reaches a power of two); each band walked in segments of
+ * step * 2^level voxels (arc length in voxel space) whose midpoints are band_entry + (i + 0.5) dt
+ * (the last segment shortened to the band's end), never accumulated. Per sample and enabled
+ * channel: its transformed position (outside the box: no sample), clamped into the valid extent
+ * of the level (so clamp-to-edge equals the reference's and no virtual voxel is read), the octree
+ * node (OctoFindNode; without transforms reused while the sample stays in the wanted node's box),
+ * trilinear brick sample or node average, transfer function, compositing.
  */
 #include "feedback.h"
 #include "node_format.h"
@@ -77,9 +79,9 @@ int OctoLevelOf(float footprint, OctoTreeGeometry g) {
 float3 OctoClampToLevel(float3 p, int level, OctoTreeGeometry g) {
   const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
   const int3 size = (n + (1 << level) - 1) >> level;
-  const float scale = ldexp(1.0f, level);
-  const float3 q = clamp(p / scale, 0.5f, convert_float3(size) - 0.5f);
-  return q * scale;
+  /* Scaling by powers of two is exact: the same as dividing by 2^level. */
+  const float3 q = clamp(p * ldexp(1.0f, -level), 0.5f, convert_float3(size) - 0.5f);
+  return q * ldexp(1.0f, level);
 }
 
 /* The position of a channel's sample: transform * p; false when it leaves the volume box. */
@@ -107,17 +109,52 @@ bool OctoWantedMissing(OctoNodeHit hit) {
   return hit.node != hit.wanted || (OctoNodeHasBrick(hit.word0) && !OctoNodeInBuffer(hit.word0));
 }
 
-/* The value of channel c at q (already clamped to `level`) as `hit` represents it; marks the slot
- * used and, in full-frame mode, requests the wanted node and applies the fallback rule. */
-float OctoReadChannel(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g,
-                      OctoNodeHit hit, float3 q, int c, volatile __global uint* request_flags,
-                      volatile __global uint* request_list, uint capacity, __global uint* slot_used,
-                      uint frame) {
+/* OctoMarkSlotUsed that also counts the frame's distinct slots (the first work item to stamp a
+ * slot counts it; the plain read keeps the atomic off the common path). */
+void OctoMarkSlotCounted(__global uint* slot_used, uint slot, uint frame,
+                         volatile __global uint* counters) {
+  if (slot_used[slot] != frame && atomic_xchg(&slot_used[slot], frame) != frame) {
+    atomic_inc(&counters[OCTO_COUNTER_SLOTS_USED]);
+  }
+}
+
+/* The first sample of a resident hit's brick, in the allocation holding its slot (slot 0 of
+ * allocation 0 when the hit has no resident brick; then it is never read). */
+__global const ushort* OctoHitBrick(OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g, OctoNodeHit hit) {
+  uint local_slot;
+  __global const ushort* allocation =
+      OctoBrickAllocation(OCTO_BRICK_BUFFER_ARGS, hit.slot, &local_slot);
+  return allocation + (ulong)local_slot * OctoBrickSamples(g);
+}
+
+/* Where a sample's channel values come from: a trilinear read of a resident brick or a node's
+ * averages (the same for every channel that reads the same node at the same position). */
+typedef struct OctoSource {
+  __global const ushort* brick; /* From OctoHitBrick; read only with from_brick. */
+  OctoTrilinear tri;
+  ulong average_node;
+  bool from_brick;
+} OctoSource;
+
+/* The source of the values at q (already clamped to `level`) as `hit` represents them (`brick`:
+ * from OctoHitBrick). With `fresh` (the first use of this hit by the ray; requests and slot stamps
+ * are idempotent within a frame, so repeating them per sample would only cost), marks the slot
+ * used and, in full-frame mode, requests the wanted node. Full frame applies the fallback rule. */
+OctoSource OctoResolveSource(__global const ushort* brick, OctoTreeGeometry g, OctoNodeHit hit,
+                             float3 q, int level, bool fresh, volatile __global uint* request_flags,
+                             volatile __global uint* request_list, uint capacity,
+                             __global uint* slot_used, uint frame,
+                             volatile __global uint* counters) {
+  OctoSource src;
+  src.brick = brick;
+  src.from_brick = false;
+  src.average_node = hit.node;
 #if !OCTO_REFINE
   if (OctoWantedMissing(hit)) {
-    OctoRequestNode(request_flags, request_list, capacity, hit.wanted, frame);
+    if (fresh) OctoRequestNode(request_flags, request_list, capacity, hit.wanted, frame);
     if (hit.level - hit.wanted_level > OCTO_MAX_FALLBACK_LEVELS) {
-      return OctoNodeAverage(nodes, hit.wanted, g, c);
+      src.average_node = hit.wanted;
+      return src;
     }
   }
 #else
@@ -125,14 +162,20 @@ float OctoReadChannel(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
   (void)request_list;
   (void)capacity;
 #endif
-  if (!OctoNodeInBuffer(hit.word0)) return OctoNodeAverage(nodes, hit.node, g, c);
-  /* A coarser node than the sample's level: its own valid extent bounds the footprint. */
-  const float3 p = OctoClampToLevel(q, hit.level, g);
-  uint local_slot;
-  __global const ushort* bricks =
-      OctoBrickAllocation(OCTO_BRICK_BUFFER_ARGS, hit.slot, &local_slot);
-  OctoMarkSlotUsed(slot_used, hit.slot, frame);
-  return OctoSampleBrick(bricks, g, local_slot, hit.index, hit.level, p, c);
+  if (!OctoNodeInBuffer(hit.word0)) return src;
+  /* A coarser node than the sample's level: its own valid extent bounds the footprint (at the
+   * same level q is already clamped: clamping again changes nothing). */
+  const float3 p = hit.level == level ? q : OctoClampToLevel(q, hit.level, g);
+  if (fresh) OctoMarkSlotCounted(slot_used, hit.slot, frame, counters);
+  src.tri = OctoTrilinearAt(g, hit.index, hit.level, p);
+  src.from_brick = true;
+  return src;
+}
+
+/* Channel c from `src`. */
+float OctoSourceRead(__global const uint* nodes, OctoTreeGeometry g, OctoSource src, int c) {
+  if (src.from_brick) return OctoTrilinearRead(src.brick, src.tri, c);
+  return OctoNodeAverage(nodes, src.average_node, g, c);
 }
 
 /* Adds n to the 64-bit sample counter held as two uint words (carry on wrap-around). */
@@ -159,9 +202,9 @@ float4 OctoFinishPixel(OctoRenderFrame f, __global const OctoChannelParams* chan
   bool any = false;
   for (int k = 0; k < f.active_channels; ++k) {
     const float e = extreme[k];
-    if (!(e >= 0.0f && e <= 1.0f)) continue; /* Never sampled. */
+    if (!(e >= 0.0f && e <= 65535.0f)) continue; /* Never sampled. */
     any = true;
-    out.xyz += OctoTransfer(&channels[k], lut, e).xyz;
+    out.xyz += OctoTransfer(&channels[k], lut, OctoWindowed(&channels[k], e)).xyz;
   }
   if (any) out.w = 1.0f;
 #endif
@@ -175,8 +218,12 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                       __global uint* slot_used, uint frame, __global float4* image,
                       volatile __global uint* counters, __global uint* ray_next,
                       __global float4* ray_acc, __global float* ray_extreme) {
-  const int pixel = (int)get_global_id(0);
-  if (pixel >= f.width * f.height) return;
+  /* 2-D range over the image, rounded up to whole tiles: neighbouring rays of a work group read
+   * the same bricks. */
+  const int px = (int)get_global_id(0);
+  const int py = (int)get_global_id(1);
+  if (px >= f.width || py >= f.height) return;
+  const int pixel = py * f.width + px;
 #if OCTO_REFINE
   uint first = ray_next[pixel];
   if (first == OCTO_RAY_DONE) return; /* Finished in an earlier pass. */
@@ -186,8 +233,6 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
   (void)ray_extreme;
   const uint first = 0u;
 #endif
-  const int px = pixel % f.width;
-  const int py = pixel / f.width;
 
   /* The pixel's ray (Camera::PixelRay), in voxel space with the physical parameter t. */
   const float3 forward = (float3)(f.forward[0], f.forward[1], f.forward[2]);
@@ -250,8 +295,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 #if OCTO_REFINE
     extreme[k] = ray_extreme[(size_t)pixel * (size_t)f.active_channels + (size_t)k];
 #else
-    /* "Not sampled": outside [0, 1], and any windowed value replaces it. */
-    extreme[k] = OCTO_MODE == OCTO_MODE_MIP ? -1.0f : 2.0f;
+    /* "Not sampled": outside the stored range [0, 65535], and any stored value replaces it. */
+    extreme[k] = OCTO_MODE == OCTO_MODE_MIP ? -1.0f : INFINITY;
 #endif
   }
 #else
@@ -263,7 +308,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 
   uint samples = 0u;
   bool paused = false;
-  uint i = first;
+  uint i = first; /* Global sample index over all bands (the refinement's ray state). */
   if (!empty) {
     /* Arc length in voxel space: |d_vox| voxels per µm; positions entry + u * arc. */
     const float vpu = length(d);
@@ -271,25 +316,83 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     const float3 entry = o + d * t0;
     const float len = (t1 - t0) * vpu;
     const float rounding = OCTO_SLIVER_ULPS * FLT_EPSILON * (fabs(t0) + fabs(t1)) * vpu;
-    const uint segments = (uint)fmax(1.0f, ceil((len - rounding) / f.step));
     const bool perspective = f.projection == OCTO_PROJECTION_PERSPECTIVE;
-    while (i < segments) {
-      /* Segment i's midpoint, computed from its index (never accumulated). */
-      const float start = (float)i * f.step;
-      const float seg = (i + 1u < segments) ? f.step : len - start;
+    /* Perspective footprint per µm of t along the ray: footprint(t) = fp_per_t * t. */
+    const float fp_per_t = f.lod_scale * cos_forward;
+    const float entry_abs = fmax(fabs(entry.x), fmax(fabs(entry.y), fabs(entry.z)));
+
+    /* The screen decides the level; it is constant along a band of the ray (the whole ray when
+     * orthographic), and a band of level L is sampled every step * 2^L voxels (the level's voxel
+     * size): a finer step would only re-read the same interpolated data. */
+    int level = OctoLevelOf(perspective ? fp_per_t * t0 : f.lod_scale, g);
+    float band_start = 0.0f; /* Arc where the current band begins. */
+    uint band_base = 0u;     /* Global index of its first sample. */
+    float band_end = len;
+    float dt = f.step;
+    uint band_n = 0u;
+    bool last_band = true;
+    bool band_ready = false;
+
+    /* The node hit of the previous sample (all_identity only), valid for every position inside
+     * its wanted node's box (level-0 coordinates) at the same level: the traversal would take the
+     * same path and stop at the same nodes. */
+    OctoNodeHit shared_hit;
+    __global const ushort* shared_brick = bricks0;
+    bool cached = false;
+    int cached_level = -1;
+    float3 cache_lo = (float3)(0.0f);
+    float3 cache_hi = (float3)(0.0f);
+    for (;;) {
+      if (!band_ready) {
+        /* The band of `level` ends where the footprint reaches 2^(level + 1). */
+        band_end = len;
+        if (perspective && level < g.root_level) {
+          band_end = fmin(len, (ldexp(2.0f, level) / fp_per_t - t0) * vpu);
+        }
+        band_end = fmax(band_end, band_start);
+        last_band = band_end >= len;
+        dt = f.step * ldexp(1.0f, level);
+        /* Segments of dt, the last shortened to the band's end; a float sliver is no segment. A
+         * ray always has at least one. */
+        const float floor_n = (band_base == 0u && last_band) ? 1.0f : 0.0f;
+        band_n = (uint)fmax(floor_n, ceil((band_end - band_start - rounding) / dt));
+        band_ready = true;
+      }
+      if (i >= band_base + band_n) {
+        if (last_band) break;
+        band_base += band_n;
+        band_start = band_end;
+        ++level;
+        band_ready = false;
+        continue;
+      }
+      /* Segment j of the band: its midpoint computed from its index (never accumulated). */
+      const uint j = i - band_base;
+      const float start = band_start + (float)j * dt;
+      const float seg = (j + 1u < band_n) ? dt : band_end - start;
       const float arc = start + 0.5f * seg;
       const float3 p = entry + u * arc;
-      /* The screen decides the level: the pixel footprint at the sample's distance. */
-      const float footprint =
-          perspective ? f.lod_scale * (t0 + arc / vpu) * cos_forward : f.lod_scale;
-      const int level = OctoLevelOf(footprint, g);
 
-      /* Without transforms every channel reads the same node: traverse once. */
-      OctoNodeHit shared_hit;
+      /* Without transforms every channel reads the same node: traverse once, and only when the
+       * sample left the previous hit's wanted box. */
       float3 shared_q = p;
+      bool fresh = true;
       if (f.all_identity) {
         shared_q = OctoClampToLevel(p, level, g);
-        shared_hit = OctoFindNode(nodes, g, shared_q, level);
+        if (cached && cached_level == level && all(shared_q >= cache_lo) &&
+            all(shared_q < cache_hi)) {
+          fresh = false;
+        } else {
+          shared_hit = OctoFindNode(nodes, g, shared_q, level);
+          shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
+          const float3 size =
+              convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level);
+          cache_lo =
+              convert_float3(OctoNodeIndex(shared_q, shared_hit.wanted_level, g).xyz) * size;
+          cache_hi = cache_lo + size;
+          cached = true;
+          cached_level = level;
+        }
       }
 #if OCTO_REFINE
       /* Refinement samples only the wanted level: a missing brick pauses the ray here. */
@@ -319,54 +422,61 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       float3 mix_rgb = (float3)(0.0f);
       float transmit = 1.0f;
       bool transparent = true;
+      /* Opacity corrected by the segment's physical length, whatever the level's step. */
       const float ratio = seg / vpu * f.inv_reference;
 #endif
+      /* All channels at one position read one source: resolve it once. */
+      OctoSource shared_src;
+      if (f.all_identity) {
+        shared_src = OctoResolveSource(shared_brick, g, shared_hit, shared_q, level, fresh,
+                                       request_flags, request_list, request_capacity, slot_used,
+                                       frame, counters);
+      }
       for (int k = 0; k < f.active_channels; ++k) {
-        OctoNodeHit hit;
-        float3 q;
+        OctoSource src;
         if (f.all_identity) {
-          hit = shared_hit;
-          q = shared_q;
+          src = shared_src;
         } else {
+          float3 q;
           if (!OctoChannelPosition(&channels[k], p, f, &q)) continue;
           q = OctoClampToLevel(q, level, g);
-          hit = OctoFindNode(nodes, g, q, level);
+          const OctoNodeHit hit = OctoFindNode(nodes, g, q, level);
+          src = OctoResolveSource(OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, hit), g, hit, q, level,
+                                  true, request_flags, request_list, request_capacity, slot_used,
+                                  frame, counters);
         }
-        const float v =
-            OctoReadChannel(nodes, OCTO_BRICK_BUFFER_ARGS, g, hit, q, channels[k].channel,
-                            request_flags, request_list, request_capacity, slot_used, frame);
+        const float v = OctoSourceRead(nodes, g, src, channels[k].channel);
         ++samples;
-        const float w = OctoWindowed(&channels[k], v);
 #if OCTO_MODE == OCTO_MODE_DVR
         /* Per-sample intermixing: premultiplied colours add, alphas combine. */
-        const float4 rgba = OctoTransfer(&channels[k], lut, w);
+        const float4 rgba = OctoTransfer(&channels[k], lut, OctoWindowed(&channels[k], v));
         if (rgba.w != 0.0f) transparent = false;
         const float a = OctoCorrectOpacity(rgba.w, ratio);
         mix_rgb += rgba.xyz * a;
         transmit *= 1.0f - a;
 #elif OCTO_MODE == OCTO_MODE_MIP
-        extreme[k] = fmax(extreme[k], w);
+        /* Stored-value extremum: the window (width > 0, gamma > 0) is monotone, so it is applied
+         * once when the pixel is finished. */
+        extreme[k] = fmax(extreme[k], v);
 #else
-        extreme[k] = fmin(extreme[k], w);
+        extreme[k] = fmin(extreme[k], v);
 #endif
       }
-      uint next = i + 1u;
+      uint next = j + 1u; /* Band-local. */
 #if OCTO_MODE == OCTO_MODE_DVR
       const float mix_a = 1.0f - transmit;
       /* Colours never beyond the mixed opacity (render_params.h). */
       acc.xyz += (1.0f - acc.w) * fmin(mix_rgb, (float3)(mix_a));
       acc.w += (1.0f - acc.w) * mix_a;
-      if (acc.w >= 0.999f) {
-        i = segments; /* Early termination. */
-        break;
-      }
+      if (acc.w >= 0.999f) break; /* Early termination. */
       const bool skippable = transparent;
 #else
       /* Later samples of a brickless leaf repeat this value: they cannot change an extremum. */
       const bool skippable = true;
 #endif
       /* Empty space: a brickless leaf gives the same value everywhere in its box, so jump to the
-       * first midpoint beyond the box (as long as the level cannot grow past the leaf's). */
+       * first midpoint beyond the box, within the band (the level, hence the leaf, is the same
+       * there; the next band starts over). */
       if (skippable && f.skip_empty && f.all_identity && !OctoNodeHasBrick(shared_hit.word0) &&
           OctoNodeChildGroup(shared_hit.word0) == 0u && shared_hit.node == shared_hit.wanted) {
         const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.level);
@@ -376,18 +486,13 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         if (u.x != 0.0f) arc_exit = fmin(arc_exit, ((u.x > 0.0f ? hi.x : lo.x) - entry.x) / u.x);
         if (u.y != 0.0f) arc_exit = fmin(arc_exit, ((u.y > 0.0f ? hi.y : lo.y) - entry.y) / u.y);
         if (u.z != 0.0f) arc_exit = fmin(arc_exit, ((u.z > 0.0f ? hi.z : lo.z) - entry.z) / u.z);
-        arc_exit = fmin(arc_exit, len);
-        const int exit_level =
-            perspective ? OctoLevelOf(f.lod_scale * (t0 + arc_exit / vpu) * cos_forward, g) : level;
-        if (exit_level <= shared_hit.level) {
-          /* A margin for rounding: a midpoint near the face is sampled rather than skipped. */
-          const float margin =
-              1e-3f + 1e-5f * (arc_exit + fmax(fabs(entry.x), fmax(fabs(entry.y), fabs(entry.z))));
-          const float target = ceil((arc_exit - margin) / f.step - 0.5f);
-          if (target > (float)next) next = target >= (float)segments ? segments : (uint)target;
-        }
+        arc_exit = fmin(arc_exit, band_end);
+        /* A margin for rounding: a midpoint near the face is sampled rather than skipped. */
+        const float margin = 1e-3f + 1e-5f * (arc_exit + entry_abs);
+        const float target = ceil((arc_exit - margin - band_start) / dt - 0.5f);
+        if (target > (float)next) next = target >= (float)band_n ? band_n : (uint)target;
       }
-      i = next;
+      i = band_base + next;
     }
   }
   OctoAddSamples(counters, samples);

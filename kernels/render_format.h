@@ -46,6 +46,8 @@
 #define OCTO_COUNTER_FINISHED 0
 #define OCTO_COUNTER_SAMPLES_LO 1
 #define OCTO_COUNTER_SAMPLES_HI 2
+/* Distinct brick slots the pass sampled (its working set; counted once per slot per frame). */
+#define OCTO_COUNTER_SLOTS_USED 3
 #define OCTO_COUNTER_WORDS 4
 
 typedef struct OctoRenderFrame {

@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstddef>
+#include <limits>
 #include <map>
 #include <numbers>
 #include <string>
@@ -48,6 +49,9 @@ static_assert(kMaxBrickAllocations == 4);  // OCTO_BRICK_BUFFER_PARAMS takes fou
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// Work-group tile of the ray-casting kernels (pixels per side).
+constexpr int kTile = 8;
 
 double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
@@ -206,12 +210,12 @@ struct VolumeRenderer::Impl {
     return it->second.get();
   }
 
-  // Sets every argument and runs one pass over `pixels` work items; reads the counters back
+  // Sets every argument and runs one pass over the width x height pixels; reads the counters back
   // (finished rays, samples). Adds the kernel time to stats.
   Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
                  const ClMem& image, const ClMem& ray_next, const ClMem& ray_acc,
-                 const ClMem& ray_extreme, size_t pixels, uint32_t* finished, uint64_t* samples,
-                 FrameStats* stats) {
+                 const ClMem& ray_extreme, int width, int height, uint32_t* finished,
+                 uint64_t* samples, FrameStats* stats) {
     const uint32_t zeros[OCTO_COUNTER_WORDS] = {0, 0, 0, 0};
     OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
     const auto bricks = octree.brick_buffers();
@@ -221,19 +225,40 @@ struct VolumeRenderer::Impl {
         in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
         octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme));
     const Clock::time_point start = Clock::now();
-    OCTO_RETURN_IF_ERROR(context->EnqueueKernel1D(kernel, pixels));
+    OCTO_RETURN_IF_ERROR(Enqueue(kernel, width, height));
     OCTO_RETURN_IF_ERROR(context->Finish());
     stats->ms_kernel += MsSince(start);
     uint32_t words[OCTO_COUNTER_WORDS];
     OCTO_RETURN_IF_ERROR(context->ReadBuffer(counters, 0, sizeof(words), words));
     *finished = words[OCTO_COUNTER_FINISHED];
     *samples = (uint64_t{words[OCTO_COUNTER_SAMPLES_HI]} << 32) | words[OCTO_COUNTER_SAMPLES_LO];
+    stats->slots_used = words[OCTO_COUNTER_SLOTS_USED];
     return Status::Ok();
+  }
+
+  // One work item per pixel, 2-D over the image in tiles of kTile x kTile (rounded up; the kernel
+  // ignores work items outside the image): the rays of a work group are neighbours and read the
+  // same bricks.
+  Status Enqueue(cl_kernel kernel, int width, int height) const {
+    if (width <= 0 || height <= 0) return Status::Ok();
+    const auto round_up = [](int n) {
+      return static_cast<size_t>((n + kTile - 1) / kTile * kTile);
+    };
+    const size_t global[2] = {round_up(width), round_up(height)};
+    const size_t local[2] = {kTile, kTile};
+    // A device whose limit for this kernel is below one tile picks its own work-group shape.
+    size_t max_group = 0;
+    OCTO_RETURN_IF_ERROR(
+        OCTO_CL(clGetKernelWorkGroupInfo(kernel, context->device_id(), CL_KERNEL_WORK_GROUP_SIZE,
+                                         sizeof(max_group), &max_group, nullptr)));
+    const bool tiles = max_group >= size_t{kTile} * kTile;
+    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 2, nullptr, global,
+                                          tiles ? local : nullptr, 0, nullptr, nullptr));
   }
 
   // Reads the pass's requests and uploads them within `budget`; adds to stats.
   Status Feedback(DeviceOctree& octree, UploadBudget budget, FrameStats* stats,
-                  uint64_t* uploaded) {
+                  UploadStats* upload_out) {
     OCTO_ASSIGN_OR_RETURN(std::vector<uint32_t> requests, octree.ReadFeedback());
     stats->requests += requests.size();
     UploadStats upload;
@@ -241,7 +266,7 @@ struct VolumeRenderer::Impl {
     OCTO_RETURN_IF_ERROR(octree.Upload(requests, budget, &upload));
     stats->ms_upload += MsSince(start);
     stats->bricks_uploaded += upload.uploaded;
-    *uploaded = upload.uploaded;
+    *upload_out = upload;
     return Status::Ok();
   }
 };
@@ -302,8 +327,12 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
   FrameStats local;
   OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false));
-  OCTO_ASSIGN_OR_RETURN(FrameInputs in, MakeFrameInputs(*impl_->context, camera, params, options,
-                                                        octree.geometry(), spacing_));
+  // The pressure bias makes the frame coarser while the brick buffer cannot hold its working set.
+  FrameOptions frame_options = options;
+  frame_options.lod_bias += pressure_bias_;
+  OCTO_ASSIGN_OR_RETURN(
+      FrameInputs in,
+      MakeFrameInputs(*impl_->context, camera, params, frame_options, octree.geometry(), spacing_));
   // Nodes first (construction may have moved on), then the frame's feedback.
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
@@ -313,7 +342,8 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   uint32_t finished = 0;
   uint64_t samples = 0;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, in, frame, image, impl_->dummy, impl_->dummy,
-                                      impl_->dummy, pixels, &finished, &samples, &local));
+                                      impl_->dummy, camera.width(), camera.height(), &finished,
+                                      &samples, &local));
   RenderImage out;
   out.width = camera.width();
   out.height = camera.height();
@@ -323,15 +353,29 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   // Upload for the next frame; this frame's bricks stay.
   UploadBudget budget = options.upload;
   budget.protect_frame = frame;
-  uint64_t uploaded = 0;
+  UploadStats upload;
   const uint64_t requests_before = local.requests;
-  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &local, &uploaded));
+  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &local, &upload));
   local.passes = 1;
   local.samples = samples;
   local.finished_fraction = 1;
   local.pass_finished = {1.0};
   // Nothing requested: every sample used the level the screen needs.
   local.final = local.requests == requests_before;
+  local.lod_bias_used = frame_options.lod_bias;
+  // Pressure: requests were left although neither the time nor the count limit stopped the
+  // upload, so every evictable slot was taken (the frame's own bricks are protected).
+  const bool time_or_count_limited =
+      upload.ms >= budget.max_ms ||
+      (budget.max_bricks != 0 && upload.uploaded >= budget.max_bricks);
+  const int max_bias = octree.geometry().root_level();
+  if (upload.deferred > 0 && !time_or_count_limited) {
+    pressure_bias_ = std::min(pressure_bias_ + 1, max_bias);
+  } else if (pressure_bias_ > 0 && local.final &&
+             local.slots_used * 9 <= uint64_t{octree.slot_count()}) {
+    // Room for the next finer level: up to 8x the bricks plus these as their ancestors.
+    --pressure_bias_;
+  }
   local.ms_total = MsSince(start);
   if (stats) *stats = std::move(local);
   return out;
@@ -351,6 +395,7 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
   Refinement::State& s = *r->state_;
   s.mode = params.mode;
   s.options = options;
+  r->stats_.lod_bias_used = options.lod_bias;
   s.width = camera.width();
   s.height = camera.height();
   OCTO_ASSIGN_OR_RETURN(s.inputs, MakeFrameInputs(*impl_->context, camera, params, options,
@@ -371,8 +416,10 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
                           ctx.CreateBuffer(CL_MEM_READ_WRITE, acc.size() * 4, acc.data()));
     OCTO_ASSIGN_OR_RETURN(s.ray_extreme, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
   } else {
-    // "Not sampled" lies outside [0, 1]: below for maxima, above for minima.
-    const float init = params.mode == RenderMode::kMip ? -1.0f : 2.0f;
+    // Stored-value extrema; "not sampled" lies outside [0, 65535]: below for maxima, above for
+    // minima.
+    const float init =
+        params.mode == RenderMode::kMip ? -1.0f : std::numeric_limits<float>::infinity();
     const std::vector<float> extreme(pixels * std::max(1, s.inputs.active), init);
     OCTO_ASSIGN_OR_RETURN(s.ray_extreme,
                           ctx.CreateBuffer(CL_MEM_READ_WRITE, extreme.size() * 4, extreme.data()));
@@ -395,14 +442,15 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   uint32_t finished = 0;
   uint64_t samples = 0;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, s.inputs, frame, s.image, s.ray_next,
-                                      s.ray_acc, s.ray_extreme, pixels, &finished, &samples,
-                                      &stats));
+                                      s.ray_acc, s.ray_extreme, s.width, s.height, &finished,
+                                      &samples, &stats));
   // Paused rays hold no brick between passes: protect nothing but what this upload brings in
   // (the upload manager never evicts a brick it uploaded in the same call).
   UploadBudget budget = s.options.upload;
   budget.protect_frame = frame + 1;
-  uint64_t uploaded = 0;
-  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &uploaded));
+  UploadStats upload;
+  OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &upload));
+  const uint64_t uploaded = upload.uploaded;
   s.finished += finished;
   stats.passes += 1;
   stats.samples += samples;

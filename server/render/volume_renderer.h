@@ -4,15 +4,15 @@
 // float precision and the level of detail used.
 //
 // Per sample (kernels/raycast.cl): the ray is clipped to the volume box and the clipping planes
-// exactly as ClipRayToVolume does, sampled at the same segment midpoints (entry + (i + 0.5) dt,
-// never accumulated), and each ENABLED channel is read at its transformed position. The level of
-// detail is chosen PER SAMPLE: the pixel footprint at the sample's distance (constant for
-// orthographic cameras) in level-0 voxels of the finest spacing, level = clamp(floor(log2(
-// footprint) + lod_bias), 0, root level), so the screen's resolution decides and nothing finer
-// is fetched. Empty space: a sample in a brickless leaf node (homogeneous or never written) whose
-// averages give zero opacity (DVR) or cannot raise any channel's running maximum (MIP; lower the
-// minimum for MinIP) skips to the node's exit (only when no enabled channel has a transform that
-// moves it, since then all channels read the same node).
+// exactly as ClipRayToVolume does, sampled at the same segment midpoints at level 0 (entry +
+// (i + 0.5) dt, never accumulated; coarser levels: see "Sampling distance"), and each ENABLED
+// channel is read at its transformed position. The level of detail is chosen PER SAMPLE: the pixel
+// footprint at the sample's distance (constant for orthographic cameras) in level-0 voxels of the
+// finest spacing, level = clamp(floor(log2(footprint) + lod_bias), 0, root level), so the screen's
+// resolution decides and nothing finer is fetched. Empty space: a sample in a brickless leaf node
+// (homogeneous or never written) whose averages give zero opacity (DVR) or cannot raise any
+// channel's running maximum (MIP; lower the minimum for MinIP) skips to the node's exit (only when
+// no enabled channel has a transform that moves it, since then all channels read the same node).
 //
 // Modes:
 //  * Full frame: a sample whose wanted node (the level the screen needs) is not resident uses the
@@ -25,6 +25,21 @@
 //    Each pass reports the fraction of finished rays. Because only the bricks of the ray fronts
 //    are needed in one pass, working sets larger than the brick buffer finish too (a pass that
 //    advances no ray with everything requested resident is an internal error, never a hang).
+//
+// Sampling distance: a sample at level L stands for step * 2^L level-0 voxels (the level's voxel
+// size; a finer step would re-read the same interpolated data), its DVR opacity corrected by its
+// actual physical length. Orthographic rays have one level, hence one step. Perspective rays are
+// split into bands of constant level (boundaries where the footprint reaches a power of two) and
+// each band is sampled at band_entry + (i + 0.5) * step_band, its last segment shortened to the
+// band's end. At level 0 this is exactly the fixed-step sampling of the reference.
+//
+// Brick-buffer pressure (full frames): when a frame's requests could not be uploaded because every
+// slot holds a brick the frame itself sampled (UploadStats.deferred with no time or count limit
+// reached), the next full frames use an internal extra lod bias of +1 (coarser: the working set
+// shrinks ~8x), raised again while the pressure lasts (at most the root level). It is lowered by
+// one when a frame requested nothing and used at most 1/9 of the slots (the finer level needs
+// at most 8x as many bricks plus these as ancestors): the gap is the hysteresis. Reported as
+// FrameStats::lod_bias_used.
 //
 // Thread safety: NOT thread-safe; one render thread owns the renderer, its DeviceOctree and the
 // device queue (render_service.h). A Refinement belongs to the renderer that started it.
@@ -76,6 +91,9 @@ struct FrameStats {
   double finished_fraction = 0;       // Rays finished after the last pass (full frame: 1).
   bool final = false;                 // Refinement complete at the level the screen needs.
   std::vector<double> pass_finished;  // finished_fraction after each pass.
+  // The lod bias the frame used: FrameOptions::lod_bias plus the internal pressure bias.
+  double lod_bias_used = 0;
+  uint64_t slots_used = 0;  // Distinct brick slots sampled (the last pass's working set).
 };
 
 // A refinement in progress: its camera, parameters, per-pixel ray state on the device and the
@@ -143,6 +161,9 @@ class VolumeRenderer {
 
   std::unique_ptr<Impl> impl_;
   DeviceOctree* device_octree_ = nullptr;
+  // Internal extra lod bias of full frames under brick-buffer pressure (see the file comment);
+  // 0..root level.
+  int pressure_bias_ = 0;
   Vec3 spacing_;
 };
 

@@ -1,0 +1,366 @@
+// VolumeRenderer: level-adaptive sampling distance, perspective level bands, the full-frame
+// pressure bias and the root level (volume_renderer.h), against independent oracles: sample
+// counts computed here in double from the ray geometry, the analytic opacity of a constant
+// medium, the CPU reference renderer (error bounds only: levels above 0 are the octree's means)
+// and, where the claim is "identical", the renderer's own refinement.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <numbers>
+
+#include "cl_test_env.h"
+#include "render/device_octree.h"
+#include "render/reference_renderer.h"
+#include "render/volume_renderer.h"
+#include "render_fixture.h"
+#include "volume_renderer_rig.h"
+
+namespace octoscope::render {
+namespace {
+
+using ::octoscope::render::testing::AllFinite;
+using ::octoscope::render::testing::CompareImages;
+using ::octoscope::render::testing::Describe;
+using ::octoscope::render::testing::Gpu;
+using ::octoscope::render::testing::Hash;
+using ::octoscope::render::testing::ImageDiff;
+using ::octoscope::render::testing::kTol;
+using ::octoscope::render::testing::MakeRenderScene;
+using ::octoscope::render::testing::MakeRig;
+using ::octoscope::render::testing::Reference;
+using ::octoscope::render::testing::Refine;
+using ::octoscope::render::testing::RenderScene;
+using ::octoscope::render::testing::SceneSpec;
+using ::octoscope::render::testing::Standard;
+
+SceneSpec HashSpec(std::array<int64_t, 3> size, octree::Vec3 brick) {
+  SceneSpec spec;
+  spec.size = size;
+  spec.brick = brick;
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    return static_cast<uint16_t>(Hash(x, y, z, c) & 0xffff);
+  };
+  return spec;
+}
+
+// Smooth gradients plus noise: levels above 0 stay close to the full resolution.
+SceneSpec SmoothSpec(std::array<int64_t, 3> size, octree::Vec3 brick) {
+  SceneSpec spec;
+  spec.size = size;
+  spec.brick = brick;
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    const double smooth = 0.5 + 0.5 * std::sin(0.3 * x + 0.2 * y * (c + 1) + 0.25 * z);
+    return static_cast<uint16_t>(40000 * smooth + (Hash(x, y, z, c) % 25000));
+  };
+  return spec;
+}
+
+// Level 1 against the full-resolution reference on SmoothSpec: DVR integrates (the means stay
+// close); a MIP of 2x2x2 means loses up to the per-voxel noise amplitude 25000 / 65535 = 0.38.
+double MaxCoarseError(RenderMode mode) { return mode == RenderMode::kMip ? 0.4 : 0.25; }
+
+FrameOptions NoSkip(FrameOptions o, double lod_bias) {
+  o.skip_empty_space = false;
+  o.lod_bias = lod_bias;
+  return o;
+}
+
+// Orthographic z view, one pixel per voxel: every ray crosses nz = 21 voxels; at level L a sample
+// stands for 2^L voxels, so each ray takes ceil(21 / 2^L) samples (MIP never stops early).
+TEST(VolumeRendererLodTest, OrthoStepIsTheLevelsVoxelSize) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(HashSpec({40, 24, 21}, {8, 8, 8}));
+  ASSERT_NE(rig, nullptr);
+  ASSERT_GE(rig->device->geometry().root_level(), 2);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 40, 24);
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  // Bias 0.5 / 1.5 / 2.5 on a footprint of 1: levels 0 / 1 / 2 with margin against rounding.
+  const uint64_t expected[3] = {21, 11, 6};
+  for (int level = 0; level < 3; ++level) {
+    FrameStats stats;
+    Gpu(*rig, camera, params, NoSkip(Refine(), level + 0.5), &stats);
+    EXPECT_TRUE(stats.final);
+    EXPECT_EQ(stats.samples, 40u * 24 * expected[level]) << "level " << level;
+  }
+}
+
+// The number of samples of a perspective ray along its camera's forward axis from t0 to t1 (µm,
+// spacing 1) whose footprint is k * t voxels: bands of constant level floor(log2(k t)) clamped
+// to [0, root], each cut into segments of step * 2^level (the last one shortened).
+uint64_t ExpectedBandSamples(double k, double t0, double t1, double step, int root) {
+  uint64_t n = 0;
+  double start = t0;
+  int level = std::clamp(static_cast<int>(std::floor(std::log2(k * t0))), 0, root);
+  while (start < t1) {
+    const double end = level < root ? std::min(t1, std::exp2(level + 1) / k) : t1;
+    if (end > start)
+      n += static_cast<uint64_t>(std::ceil((end - start) / (step * std::exp2(level))));
+    start = std::max(start, end);
+    ++level;
+  }
+  return n;
+}
+
+TEST(VolumeRendererLodTest, PerspectiveBandsSampleEachLevelAtItsVoxelSize) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(HashSpec({16, 16, 128}, {8, 8, 8}));
+  ASSERT_NE(rig, nullptr);
+  const int root = rig->device->geometry().root_level();
+  ASSERT_EQ(root, 4);
+  // One pixel on the axis: footprint = 2 tan(fov / 2) * 2^bias * t; entry t0 = 40, exit 168.
+  const double k = 0.0195;
+  const double fov = 2 * std::atan(k / 2) * 180 / std::numbers::pi;
+  Result<Camera> camera = Camera::LookAt(Projection::kPerspective, {8.25, 8.25, -40},
+                                         {8.25, 8.25, 64}, {0, 1, 0}, 1, 1, fov, 1);
+  ASSERT_TRUE(camera.ok()) << camera.status().ToString();
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  for (double step : {1.0, 0.75}) {
+    params.step_voxels = step;
+    for (double bias : {0.0, 1.0, 2.0}) {
+      const double kb = k * std::exp2(bias);
+      const uint64_t expected = ExpectedBandSamples(kb, 40, 168, step, root);
+      FrameStats stats;
+      Gpu(*rig, *camera, params, NoSkip(Refine(), bias), &stats);
+      EXPECT_EQ(stats.samples, expected) << "step " << step << " bias " << bias;
+    }
+  }
+  // The oracle itself: bias 0 step 1 is 63 level-0 segments (40..102.6) + 33 level-1 ones.
+  EXPECT_EQ(ExpectedBandSamples(k, 40, 168, 1, root), 96u);
+}
+
+// A constant medium (pruned to a brickless root): whatever the level's step, the opacity of a ray
+// of length L is 1 - (1 - a)^(L / reference) with a the transfer function's alpha.
+TEST(VolumeRendererLodTest, DvrOpacityOfAConstantMediumAtEveryLevel) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {40, 36, 30};
+  spec.value = [](int, int64_t, int64_t, int64_t) -> uint16_t { return 21000; };
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  params.channels[0].opacity_scale = 0.04;
+  const double a =
+      TransferFunction(params.channels[0], WindowedValue(params.channels[0], 21000))[3];
+  ASSERT_GT(a, 0.005);
+  const double expected = 1 - std::pow(1 - a, 30.0);
+  const Camera z = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 40, 36);
+  const Camera persp = Standard(*rig, StandardView::kIso, Projection::kPerspective, 32, 32);
+  const RenderImage persp_ref = Reference(*rig, persp, params);
+  for (double bias : {0.5, 1.5, 2.5, 3.5}) {
+    FrameStats stats;
+    const RenderImage image = Gpu(*rig, z, params, NoSkip(Refine(), bias), &stats);
+    EXPECT_EQ(
+        stats.samples,
+        40u * 36 * static_cast<uint64_t>(std::ceil(30 / std::exp2(std::min(bias - 0.5, 2.0)))));
+    double worst = 0;
+    for (int y = 0; y < 36; ++y) {
+      for (int x = 0; x < 40; ++x)
+        worst = std::max(worst, std::abs(image.Pixel(x, y)[3] - expected));
+    }
+    EXPECT_LE(worst, 1e-4) << "bias " << bias;
+    // Perspective: every band's length corrected; the reference samples at full resolution.
+    const RenderImage p = Gpu(*rig, persp, params, NoSkip(Refine(), bias));
+    double worst_p = 0;
+    for (size_t i = 3; i < p.rgba.size(); i += 4) {
+      worst_p = std::max(worst_p, std::abs(double{p.rgba[i]} - persp_ref.rgba[i]));
+    }
+    EXPECT_LE(worst_p, 1e-4) << "perspective bias " << bias;
+  }
+}
+
+TEST(VolumeRendererLodTest, CoarseLevelsStayCloseToTheReference) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(SmoothSpec({64, 64, 32}, {8, 8, 8}));
+  ASSERT_NE(rig, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    params.channels[0].opacity_scale = 0.05;
+    for (Projection projection : {Projection::kOrthographic, Projection::kPerspective}) {
+      const Camera camera = Standard(*rig, StandardView::kIso, projection, 48, 48);
+      const RenderImage ref = Reference(*rig, camera, params);
+      FrameStats fine_stats;
+      FrameStats coarse_stats;
+      Gpu(*rig, camera, params, NoSkip(Refine(), 0), &fine_stats);
+      const RenderImage coarse = Gpu(*rig, camera, params, NoSkip(Refine(), 1), &coarse_stats);
+      const ImageDiff d = CompareImages(coarse, ref);
+      EXPECT_LT(d.max_abs, MaxCoarseError(mode)) << RenderModeName(mode) << " " << Describe(d);
+      EXPECT_GT(d.psnr, 20) << RenderModeName(mode) << " " << Describe(d);
+      // One level coarser everywhere (below the root): at most ~half the samples.
+      EXPECT_LT(coarse_stats.samples * 10, fine_stats.samples * 6) << RenderModeName(mode);
+    }
+  }
+}
+
+// Refinement state is the sample index over all bands: rays paused many times (8 slots, ray fronts
+// only) resume exactly where a roomy buffer's rays go on, so images and sample counts are equal.
+TEST(VolumeRendererLodTest, PerspectiveBandsResumeExactly) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = SmoothSpec({32, 32, 32}, {8, 8, 8});
+  auto roomy = MakeRig(spec);
+  ASSERT_NE(roomy, nullptr);
+  DeviceOctreeOptions tight;
+  tight.brick_buffer_bytes = kMinBrickSlots * 10 * 10 * 10 * 2;
+  auto small = MakeRig(spec, tight);
+  ASSERT_NE(small, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    params.channels[0].opacity_scale = 0.05;
+    // 24 pixels: the far side's footprint crosses from level 0 over 1 into 2 with bias 0.5.
+    const Camera camera = Standard(*roomy, StandardView::kIso, Projection::kPerspective, 24, 24);
+    FrameOptions options = Refine();
+    options.lod_bias = 0.5;
+    // The footprint's level differs between the nearest and farthest corner: rays cross bands.
+    double near = 1e300;
+    double far = 0;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Vec3 p{corner & 1 ? 32.0 : 0.0, corner & 2 ? 32.0 : 0.0, corner & 4 ? 32.0 : 0.0};
+      const double distance = Dot(p - camera.position(), camera.forward());
+      near = std::min(near, distance);
+      far = std::max(far, distance);
+    }
+    const double per_um = 2 * std::tan(camera.fov_y_degrees() * std::numbers::pi / 360) /
+                          camera.height() * std::exp2(options.lod_bias);
+    ASSERT_LT(std::floor(std::log2(near * per_um)), std::floor(std::log2(far * per_um)));
+    FrameStats a_stats;
+    FrameStats b_stats;
+    const RenderImage a = Gpu(*roomy, camera, params, options, &a_stats);
+    const RenderImage b = Gpu(*small, camera, params, options, &b_stats);
+    EXPECT_TRUE(b_stats.final);
+    EXPECT_GT(b_stats.passes, a_stats.passes);
+    EXPECT_EQ(a_stats.samples, b_stats.samples) << RenderModeName(mode);
+    EXPECT_LE(CompareImages(a, b).max_abs, 1e-6) << RenderModeName(mode);
+  }
+}
+
+// 8 brick slots for a view wanting all 64 leaves: repeated full frames raise the pressure bias
+// until a frame requests nothing; that frame equals the refinement at the same bias.
+TEST(VolumeRendererLodTest, FullFramesUnderBrickPressureSettleCoarser) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = SmoothSpec({32, 32, 32}, {8, 8, 8});
+  DeviceOctreeOptions tight;
+  tight.brick_buffer_bytes = kMinBrickSlots * 10 * 10 * 10 * 2;
+  auto rig = MakeRig(spec, tight);
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->device->slot_count(), kMinBrickSlots);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  params.channels[0].opacity_scale = 0.05;
+  const Camera camera = Standard(*rig, StandardView::kIso, Projection::kOrthographic, 32, 32);
+  FrameOptions full;
+  full.upload.max_ms = 1e9;
+  FrameStats stats;
+  RenderImage image;
+  int frames = 0;
+  for (; frames < 12 && !stats.final; ++frames) {
+    Result<RenderImage> r = rig->renderer->RenderFullFrame(camera, params, full, &stats);
+    ASSERT_TRUE(r.ok()) << r.status().ToString();
+    image = *r;
+  }
+  ASSERT_TRUE(stats.final) << "after " << frames << " frames, bias " << stats.lod_bias_used;
+  EXPECT_GE(stats.lod_bias_used, 1);
+  EXPECT_LE(stats.slots_used, kMinBrickSlots);
+  EXPECT_TRUE(AllFinite(image));
+  const ImageDiff d = CompareImages(image, Reference(*rig, camera, params));
+  EXPECT_LT(d.max_abs, 0.3) << Describe(d);
+  // Settled: stays there (hysteresis) and keeps requesting nothing.
+  for (int i = 0; i < 3; ++i) {
+    FrameStats again;
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(camera, params, full, &again).ok());
+    EXPECT_TRUE(again.final);
+    EXPECT_EQ(again.lod_bias_used, stats.lod_bias_used);
+  }
+  // The same level by refinement on a roomy buffer: the same image.
+  auto roomy = MakeRig(spec);
+  ASSERT_NE(roomy, nullptr);
+  FrameOptions refine = Refine();
+  refine.lod_bias = stats.lod_bias_used;
+  const RenderImage refined = Gpu(*roomy, camera, params, refine);
+  EXPECT_LE(CompareImages(image, refined).max_abs, 1e-6);
+  // Frames that sample nothing (the camera looks away) have room: one step down per frame.
+  Result<Camera> away = Camera::LookAt(Projection::kOrthographic, {16, 16, -100}, {16, 16, -200},
+                                       {0, 1, 0}, 8, 8, 30, 10);
+  ASSERT_TRUE(away.ok()) << away.status().ToString();
+  double bias = stats.lod_bias_used;
+  while (bias > 0) {
+    FrameStats empty_stats;
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(*away, params, full, &empty_stats).ok());
+    EXPECT_EQ(empty_stats.samples, 0u);
+    EXPECT_EQ(empty_stats.lod_bias_used, bias);
+    bias -= 1;
+  }
+  FrameStats lowered;
+  ASSERT_TRUE(rig->renderer->RenderFullFrame(*away, params, full, &lowered).ok());
+  EXPECT_EQ(lowered.lod_bias_used, 0);
+  // Without pressure the bias is the caller's.
+  FrameStats roomy_stats;
+  ASSERT_TRUE(roomy->renderer->RenderFullFrame(camera, params, full, &roomy_stats).ok());
+  EXPECT_EQ(roomy_stats.lod_bias_used, 0);
+}
+
+// The level-1 data of `spec` as a volume of its own: 2x2x2 means (rounded to nearest, as the
+// octree's), spacing 2. REQUIRES: even sizes, spacing 1.
+SceneSpec HalfResolution(const SceneSpec& spec) {
+  SceneSpec half = spec;
+  for (int a = 0; a < 3; ++a) half.size[a] = spec.size[a] / 2;
+  half.spacing = {2, 2, 2};
+  const auto full = spec.value;
+  half.value = [full](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    double sum = 0;
+    for (int dz = 0; dz < 2; ++dz)
+      for (int dy = 0; dy < 2; ++dy)
+        for (int dx = 0; dx < 2; ++dx) sum += full(c, 2 * x + dx, 2 * y + dy, 2 * z + dz);
+    return static_cast<uint16_t>(std::lround(sum / 8));
+  };
+  return half;
+}
+
+// A two-level tree (32^3, bricks of 16) with a bias that asks for the root: the root's brick is
+// requested, uploaded and sampled (not its averages). MIP at level 1 with step 1 samples the root
+// brick every 2 voxels: exactly the reference renderer on the half-resolution volume (step 1 of
+// its 2 µm voxels, the same midpoints, trilinear between the same centres).
+TEST(VolumeRendererLodTest, RootLevelUsesTheRootBrick) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = SmoothSpec({32, 32, 32}, {16, 16, 16});
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->device->geometry().root_level(), 1);
+  Result<std::unique_ptr<RenderScene>> half_scene = MakeRenderScene(HalfResolution(spec));
+  ASSERT_TRUE(half_scene.ok()) << half_scene.status().ToString();
+  Result<ReferenceVolume> half = (*half_scene)->Reference();
+  ASSERT_TRUE(half.ok()) << half.status().ToString();
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    params.channels[0].opacity_scale = 0.05;
+    const Camera camera = Standard(*rig, StandardView::kIso, Projection::kOrthographic, 24, 24);
+    const RenderImage ref = Reference(*rig, camera, params);
+    Result<RenderImage> half_ref = RenderReference(*half, camera, params);
+    ASSERT_TRUE(half_ref.ok()) << half_ref.status().ToString();
+    for (double bias : {1.0, 2.0}) {
+      FrameOptions full;
+      full.upload.max_ms = 1e9;
+      full.lod_bias = bias;
+      FrameStats stats;
+      RenderImage image;
+      for (int frame = 0; frame < 3; ++frame) {
+        Result<RenderImage> r = rig->renderer->RenderFullFrame(camera, params, full, &stats);
+        ASSERT_TRUE(r.ok()) << r.status().ToString();
+        image = *r;
+      }
+      EXPECT_TRUE(stats.final);
+      EXPECT_EQ(stats.slots_used, 1u) << "bias " << bias;
+      EXPECT_TRUE(rig->device->SlotOf(0).has_value());
+      const ImageDiff d = CompareImages(image, ref);
+      EXPECT_LT(d.max_abs, MaxCoarseError(mode))
+          << RenderModeName(mode) << " bias " << bias << " " << Describe(d);
+      if (mode == RenderMode::kMip) {
+        const ImageDiff h = CompareImages(image, *half_ref);
+        EXPECT_LE(h.max_abs, kTol) << "bias " << bias << " " << Describe(h);
+      }
+    }
+  }
+}
+
+}  // namespace
+}  // namespace octoscope::render
