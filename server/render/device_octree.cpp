@@ -49,8 +49,8 @@ struct DeviceOctree::Impl {
   uint64_t device_brick_bytes = 0;  // brick_samples * 2: the device always holds uint16.
 
   // --- Node buffer. ---
-  std::vector<uint32_t> mirror;  // capacity_nodes() * words.
-  std::vector<uint8_t> live;     // Per node id.
+  std::vector<uint32_t> mirror;         // capacity_nodes() * words.
+  std::vector<uint8_t> live;            // Per node id.
   std::vector<octree::NodeKey> key_of;  // Per node id: the key its live entry was written for.
   ClMem node_buffer;
   bool realloc_nodes = true;  // The device buffer must be (re)created from the whole mirror.

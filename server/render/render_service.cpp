@@ -228,8 +228,8 @@ void RenderService::Run(std::function<void(Status)> init) {
     // Exceptions never leave the render thread: one that escapes a frame (e.g. bad_alloc for an
     // absurd image) ends that view's request with an error, and the thread keeps serving.
     const ViewId view = step.view;
-    const Job* job = step.new_job ? step.new_job.get()
-                                  : (jobs.count(view) != 0 ? jobs.at(view).get() : nullptr);
+    const Job* job =
+        step.new_job ? step.new_job.get() : (jobs.count(view) != 0 ? jobs.at(view).get() : nullptr);
     std::shared_ptr<FrameCallback> callback = job != nullptr ? job->callback : nullptr;
     FrameResult failed;
     failed.view = view;
@@ -366,9 +366,12 @@ void RenderService::Execute(Devices& devices, std::map<ViewId, std::unique_ptr<J
              &result);
       AddSliceStats(slice_stats, &result.stats);
     } else {
-      finish(volume.RenderFullFrame(*job.request.camera, job.request.params, job.options,
-                                    &result.stats),
-             &result);
+      // Brick-buffer pressure coarsens this view's frames only.
+      FrameOptions options = job.options;
+      options.view = job.view;
+      finish(
+          volume.RenderFullFrame(*job.request.camera, job.request.params, options, &result.stats),
+          &result);
     }
     count_pass();
     Deliver(job.view, job.callback, std::move(result));

@@ -282,7 +282,8 @@ struct Refinement::State {
   int width = 0;
   int height = 0;
   uint64_t finished = 0;
-  int stalled_passes = 0;  // Consecutive passes without progress.
+  int stalled_passes = 0;          // Consecutive passes without progress.
+  int stalled_without_upload = 0;  // Of which consecutive ones that uploaded nothing either.
 };
 
 Refinement::~Refinement() = default;
@@ -317,6 +318,22 @@ Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeCont
   return r;
 }
 
+namespace {
+
+// Host memory for `pixels` RGBA float pixels; kResourceExhausted instead of an exception when the
+// host cannot hold them (an image may be up to 16384^2 pixels, 4 GiB).
+Status AllocateImage(RenderImage* image, size_t pixels) {
+  try {
+    image->rgba.resize(pixels * 4);
+  } catch (const std::bad_alloc&) {
+    return ResourceExhaustedError("no host memory for a " + std::to_string(image->width) + "x" +
+                                  std::to_string(image->height) + " image");
+  }
+  return Status::Ok();
+}
+
+}  // namespace
+
 Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
                                                     const RenderParams& params,
                                                     const FrameOptions& options,
@@ -329,7 +346,9 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false));
   // The pressure bias makes the frame coarser while the brick buffer cannot hold its working set.
   FrameOptions frame_options = options;
-  frame_options.lod_bias += pressure_bias_;
+  const auto pressure = pressure_bias_.find(options.view);
+  int pressure_bias = pressure != pressure_bias_.end() ? pressure->second : 0;
+  frame_options.lod_bias += pressure_bias;
   OCTO_ASSIGN_OR_RETURN(
       FrameInputs in,
       MakeFrameInputs(*impl_->context, camera, params, frame_options, octree.geometry(), spacing_));
@@ -347,7 +366,7 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   RenderImage out;
   out.width = camera.width();
   out.height = camera.height();
-  out.rgba.resize(pixels * 4);
+  OCTO_RETURN_IF_ERROR(AllocateImage(&out, pixels));
   OCTO_RETURN_IF_ERROR(
       impl_->context->ReadBuffer(image, 0, out.rgba.size() * sizeof(float), out.rgba.data()));
   // Upload for the next frame; this frame's bricks stay.
@@ -370,11 +389,16 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
       (budget.max_bricks != 0 && upload.uploaded >= budget.max_bricks);
   const int max_bias = octree.geometry().root_level();
   if (upload.deferred > 0 && !time_or_count_limited) {
-    pressure_bias_ = std::min(pressure_bias_ + 1, max_bias);
-  } else if (pressure_bias_ > 0 && local.final &&
+    pressure_bias = std::min(pressure_bias + 1, max_bias);
+  } else if (pressure_bias > 0 && local.final &&
              local.slots_used * 9 <= uint64_t{octree.slot_count()}) {
     // Room for the next finer level: up to 8x the bricks plus these as their ancestors.
-    --pressure_bias_;
+    --pressure_bias;
+  }
+  if (pressure_bias > 0) {
+    pressure_bias_[options.view] = pressure_bias;
+  } else {
+    pressure_bias_.erase(options.view);
   }
   local.ms_total = MsSince(start);
   if (stats) *stats = std::move(local);
@@ -402,29 +426,33 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
                                                   octree.geometry(), spacing_));
   const size_t pixels = static_cast<size_t>(s.width) * s.height;
   const ComputeContext& ctx = *impl_->context;
-  // Unprocessed pixels show the background until their ray has run.
+  // Ray state is initialised on the device (no host copies: a 16384^2 refinement must not
+  // need gigabytes of host memory). Unprocessed pixels show the background until their ray ran.
+  const auto filled = [&ctx](size_t count, const void* pattern, size_t pattern_bytes,
+                             ClMem* out) -> Status {
+    OCTO_ASSIGN_OR_RETURN(*out, ctx.CreateBuffer(CL_MEM_READ_WRITE, count * pattern_bytes));
+    OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(ctx.queue(), out->get(), pattern, pattern_bytes, 0,
+                                                count * pattern_bytes, 0, nullptr, nullptr));
+    return Status::Ok();
+  };
   const float* bg = s.inputs.frame.background;
-  std::vector<float> image(pixels * 4);
-  for (size_t i = 0; i < pixels; ++i) std::copy(bg, bg + 4, image.begin() + 4 * i);
-  OCTO_ASSIGN_OR_RETURN(s.image,
-                        ctx.CreateBuffer(CL_MEM_READ_WRITE, image.size() * 4, image.data()));
-  const std::vector<uint32_t> next(pixels, 0);
-  OCTO_ASSIGN_OR_RETURN(s.ray_next, ctx.CreateBuffer(CL_MEM_READ_WRITE, pixels * 4, next.data()));
+  OCTO_RETURN_IF_ERROR(filled(pixels, bg, 4 * sizeof(float), &s.image));
+  const uint32_t zero = 0;
+  OCTO_RETURN_IF_ERROR(filled(pixels, &zero, sizeof(zero), &s.ray_next));
   if (params.mode == RenderMode::kDvr) {
-    const std::vector<float> acc(pixels * 4, 0.0f);
-    OCTO_ASSIGN_OR_RETURN(s.ray_acc,
-                          ctx.CreateBuffer(CL_MEM_READ_WRITE, acc.size() * 4, acc.data()));
+    const float none = 0.0f;
+    OCTO_RETURN_IF_ERROR(filled(pixels * 4, &none, sizeof(none), &s.ray_acc));
     OCTO_ASSIGN_OR_RETURN(s.ray_extreme, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
   } else {
     // Stored-value extrema; "not sampled" lies outside [0, 65535]: below for maxima, above for
     // minima.
     const float init =
         params.mode == RenderMode::kMip ? -1.0f : std::numeric_limits<float>::infinity();
-    const std::vector<float> extreme(pixels * std::max(1, s.inputs.active), init);
-    OCTO_ASSIGN_OR_RETURN(s.ray_extreme,
-                          ctx.CreateBuffer(CL_MEM_READ_WRITE, extreme.size() * 4, extreme.data()));
+    OCTO_RETURN_IF_ERROR(filled(pixels * static_cast<size_t>(std::max(1, s.inputs.active)), &init,
+                                sizeof(init), &s.ray_extreme));
     OCTO_ASSIGN_OR_RETURN(s.ray_acc, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
   }
+  OCTO_RETURN_IF_ERROR(ctx.Finish());
   return r;
 }
 
@@ -463,13 +491,17 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   // anything will never progress (nor will endlessly many that keep uploading in vain).
   if (finished == 0 && samples == 0 && !stats.final) {
     ++s.stalled_passes;
-    if (uploaded == 0 || s.stalled_passes > 1000) {
+    s.stalled_without_upload = uploaded == 0 ? s.stalled_without_upload + 1 : 0;
+    // One pass without an upload can happen while construction changes the tree between Sync
+    // and Upload (a wanted node lost its brick); the next Sync sees it. Three in a row cannot.
+    if (s.stalled_without_upload >= 3 || s.stalled_passes > 1000) {
       return InternalError("refinement makes no progress: " + std::to_string(pixels - s.finished) +
                            " rays wait for bricks that cannot be made resident (" +
                            std::to_string(octree.slot_count()) + " brick slots)");
     }
   } else {
     s.stalled_passes = 0;
+    s.stalled_without_upload = 0;
   }
   return fraction;
 }
@@ -480,7 +512,7 @@ Result<RenderImage> VolumeRenderer::ReadImage(const Refinement& refinement) {
   RenderImage out;
   out.width = s.width;
   out.height = s.height;
-  out.rgba.resize(static_cast<size_t>(s.width) * s.height * 4);
+  OCTO_RETURN_IF_ERROR(AllocateImage(&out, static_cast<size_t>(s.width) * s.height));
   OCTO_RETURN_IF_ERROR(
       impl_->context->ReadBuffer(s.image, 0, out.rgba.size() * sizeof(float), out.rgba.data()));
   return out;

@@ -39,7 +39,8 @@
 // shrinks ~8x), raised again while the pressure lasts (at most the root level). It is lowered by
 // one when a frame requested nothing and used at most 1/9 of the slots (the finer level needs
 // at most 8x as many bricks plus these as ancestors): the gap is the hysteresis. Reported as
-// FrameStats::lod_bias_used.
+// FrameStats::lod_bias_used. The pressure bias is kept per FrameOptions::view (several views
+// sharing one renderer do not coarsen each other).
 //
 // Thread safety: NOT thread-safe; one render thread owns the renderer, its DeviceOctree and the
 // device queue (render_service.h). A Refinement belongs to the renderer that started it.
@@ -48,6 +49,7 @@
 
 #include <atomic>
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string_view>
 #include <vector>
@@ -78,6 +80,9 @@ struct FrameOptions {
   // Empty-space skipping (see the file comment). Never changes the image; off only for tests and
   // benchmarks.
   bool skip_empty_space = true;
+  // Which view this frame belongs to (e.g. the render service's view id): the brick-buffer
+  // pressure bias of full frames is tracked per view.
+  uint64_t view = 0;
 };
 
 struct FrameStats {
@@ -161,9 +166,9 @@ class VolumeRenderer {
 
   std::unique_ptr<Impl> impl_;
   DeviceOctree* device_octree_ = nullptr;
-  // Internal extra lod bias of full frames under brick-buffer pressure (see the file comment);
-  // 0..root level.
-  int pressure_bias_ = 0;
+  // Internal extra lod bias of full frames under brick-buffer pressure, per view (see the file
+  // comment); each 1..root level (views at 0 are erased).
+  std::map<uint64_t, int> pressure_bias_;
   Vec3 spacing_;
 };
 

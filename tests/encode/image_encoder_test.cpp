@@ -58,8 +58,8 @@ TEST(ToRgba8Test, RoundsClampsAndKeepsPremultipliedColour) {
 // PNG needs straight alpha: premultiplied (0.25, 0.5, 0, 0.5) is the colour (0.5, 1, 0) at 50 %;
 // a fully transparent pixel has no colour; an opaque one is unchanged.
 TEST(ToRgba8Test, StraightAlphaDividesTheColourByAlpha) {
-  const std::vector<float> rgba = {0.25f, 0.5f, 0.0f, 0.5f,  0.0f, 0.0f, 0.0f, 0.0f,
-                                   0.2f,  0.4f, 0.6f, 1.0f,  0.1f, 0.0f, 0.0f, 0.2f};
+  const std::vector<float> rgba = {0.25f, 0.5f, 0.0f, 0.5f, 0.0f, 0.0f, 0.0f, 0.0f,
+                                   0.2f,  0.4f, 0.6f, 1.0f, 0.1f, 0.0f, 0.0f, 0.2f};
   const Rgba8Image image = ToRgba8(rgba.data(), 4, 1, AlphaMode::kStraight);
   EXPECT_EQ(image.pixels, (std::vector<uint8_t>{128, 255, 0, 128, 0, 0, 0, 0,  //
                                                 51, 102, 153, 255, 128, 0, 0, 51}));

@@ -299,6 +299,63 @@ TEST(VolumeRendererLodTest, FullFramesUnderBrickPressureSettleCoarser) {
   EXPECT_EQ(roomy_stats.lod_bias_used, 0);
 }
 
+// The pressure bias belongs to the view that caused it: another view of the same renderer (a
+// second session looking elsewhere) keeps its own, here none.
+TEST(VolumeRendererLodTest, PressureBiasIsPerView) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = SmoothSpec({32, 32, 32}, {8, 8, 8});
+  DeviceOctreeOptions tight;
+  tight.brick_buffer_bytes = kMinBrickSlots * 10 * 10 * 10 * 2;
+  auto rig = MakeRig(spec, tight);
+  ASSERT_NE(rig, nullptr);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+  params.channels[0].opacity_scale = 0.05;
+  const Camera crowded = Standard(*rig, StandardView::kIso, Projection::kOrthographic, 32, 32);
+  Result<Camera> away = Camera::LookAt(Projection::kOrthographic, {16, 16, -100}, {16, 16, -200},
+                                       {0, 1, 0}, 8, 8, 30, 10);
+  ASSERT_TRUE(away.ok());
+  FrameOptions view1;
+  view1.upload.max_ms = 1e9;
+  view1.view = 1;
+  FrameOptions view2 = view1;
+  view2.view = 2;
+  FrameStats stats1, stats2;
+  for (int frame = 0; frame < 12 && !stats1.final; ++frame) {
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(crowded, params, view1, &stats1).ok());
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(*away, params, view2, &stats2).ok());
+    EXPECT_EQ(stats2.lod_bias_used, 0) << "frame " << frame;
+  }
+  ASSERT_TRUE(stats1.final);
+  EXPECT_GE(stats1.lod_bias_used, 1);
+}
+
+// A ray front needing far more bricks than the buffer holds (256 columns of 4^3 bricks, 8 slots)
+// must still finish: requested bricks are uploaded before their ancestor chains when the chains do
+// not fit (otherwise every pass refilled the slots with ancestors and no ray advanced).
+TEST(VolumeRendererLodTest, RefinementFinishesWhenTheFrontExceedsTheBuffer) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {256, 4, 4};
+  spec.brick = {4, 4, 4};
+  spec.value = [](int, int64_t x, int64_t y, int64_t z) {
+    return static_cast<uint16_t>((x * 977 + y * 31 + z * 7) % 60000);
+  };
+  DeviceOctreeOptions tight;
+  tight.brick_buffer_bytes = kMinBrickSlots * 6 * 6 * 6 * 2;
+  auto rig = MakeRig(spec, tight);
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->device->slot_count(), kMinBrickSlots);
+  const Camera camera = Standard(*rig, StandardView::kZ, Projection::kOrthographic, 256, 4);
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  FrameStats stats;
+  const RenderImage image = Gpu(*rig, camera, params, Refine(), &stats);
+  EXPECT_TRUE(stats.final);
+  // Every brick of the 64 leaves was needed; 8 fit at a time.
+  EXPECT_GE(stats.passes, 64 / static_cast<int>(kMinBrickSlots));
+  const ImageDiff d = CompareImages(image, Reference(*rig, camera, params));
+  EXPECT_LE(d.max_abs, kTol) << Describe(d);
+}
+
 // The level-1 data of `spec` as a volume of its own: 2x2x2 means (rounded to nearest, as the
 // octree's), spacing 2. REQUIRES: even sizes, spacing 1.
 SceneSpec HalfResolution(const SceneSpec& spec) {
