@@ -346,9 +346,10 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false));
   // The pressure bias makes the frame coarser while the brick buffer cannot hold its working set.
   FrameOptions frame_options = options;
-  const auto pressure = pressure_bias_.find(options.view);
-  int pressure_bias = pressure != pressure_bias_.end() ? pressure->second : 0;
-  frame_options.lod_bias += pressure_bias;
+  ViewLod lod;
+  if (const auto it = view_lod_.find(options.view); it != view_lod_.end()) lod = it->second;
+  if (options.target_frame_ms <= 0) lod.time_bias = 0;
+  frame_options.lod_bias += lod.pressure_bias + lod.time_bias;
   OCTO_ASSIGN_OR_RETURN(
       FrameInputs in,
       MakeFrameInputs(*impl_->context, camera, params, frame_options, octree.geometry(), spacing_));
@@ -389,16 +390,24 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
       (budget.max_bricks != 0 && upload.uploaded >= budget.max_bricks);
   const int max_bias = octree.geometry().root_level();
   if (upload.deferred > 0 && !time_or_count_limited) {
-    pressure_bias = std::min(pressure_bias + 1, max_bias);
-  } else if (pressure_bias > 0 && local.final &&
+    lod.pressure_bias = std::min(lod.pressure_bias + 1, max_bias);
+  } else if (lod.pressure_bias > 0 && local.final &&
              local.slots_used * 9 <= uint64_t{octree.slot_count()}) {
     // Room for the next finer level: up to 8x the bricks plus these as their ancestors.
-    --pressure_bias;
+    --lod.pressure_bias;
   }
-  if (pressure_bias > 0) {
-    pressure_bias_[options.view] = pressure_bias;
+  // Frame-time target: about half the cost per level of bias, so log2 of the ratio is the bias
+  // step that would hit the target; damped, with a dead band against timing noise.
+  if (options.target_frame_ms > 0 && local.ms_kernel > 0) {
+    const double error = std::log2(local.ms_kernel / options.target_frame_ms);
+    if (std::abs(error) > 0.25) {
+      lod.time_bias = std::clamp(lod.time_bias + 0.75 * error, 0.0, static_cast<double>(max_bias));
+    }
+  }
+  if (lod.pressure_bias > 0 || lod.time_bias > 0) {
+    view_lod_[options.view] = lod;
   } else {
-    pressure_bias_.erase(options.view);
+    view_lod_.erase(options.view);
   }
   local.ms_total = MsSince(start);
   if (stats) *stats = std::move(local);

@@ -42,6 +42,14 @@
 // FrameStats::lod_bias_used. The pressure bias is kept per FrameOptions::view (several views
 // sharing one renderer do not coarsen each other).
 //
+// Frame-time target (full frames, FrameOptions::target_frame_ms): the cost of a frame falls about
+// by half per level of bias (samples per ray follow the level's voxel size; the pixels stay), so
+// after each frame the view's time bias moves by 0.75 * log2(kernel ms / target) when that is
+// more than 0.25 away from 0 (a dead band against timing noise), clamped to [0, root level]. The
+// fractional bias changes the level only where the footprint crosses the shifted threshold, so
+// quality degrades smoothly across the image. Interaction stays at the target; refinement (which
+// ignores both adaptive biases) delivers the full detail when the user stops.
+//
 // Thread safety: NOT thread-safe; one render thread owns the renderer, its DeviceOctree and the
 // device queue (render_service.h). A Refinement belongs to the renderer that started it.
 #ifndef OCTOSCOPE_RENDER_VOLUME_RENDERER_H_
@@ -80,9 +88,13 @@ struct FrameOptions {
   // Empty-space skipping (see the file comment). Never changes the image; off only for tests and
   // benchmarks.
   bool skip_empty_space = true;
-  // Which view this frame belongs to (e.g. the render service's view id): the brick-buffer
-  // pressure bias of full frames is tracked per view.
+  // Which view this frame belongs to (e.g. the render service's view id): the adaptive biases
+  // of full frames (brick-buffer pressure, frame-time target) are tracked per view.
   uint64_t view = 0;
+  // Full frames: a kernel-time target in ms (0 = none). While frames take longer, the view's
+  // frames get coarser (an extra fractional lod bias, see the file comment); when they are
+  // much faster, finer again, down to the caller's lod_bias.
+  double target_frame_ms = 0;
 };
 
 struct FrameStats {
@@ -166,9 +178,13 @@ class VolumeRenderer {
 
   std::unique_ptr<Impl> impl_;
   DeviceOctree* device_octree_ = nullptr;
-  // Internal extra lod bias of full frames under brick-buffer pressure, per view (see the file
-  // comment); each 1..root level (views at 0 are erased).
-  std::map<uint64_t, int> pressure_bias_;
+  // Per view (FrameOptions::view) adaptive state of full frames (see the file comment); views
+  // whose state is all zero are erased.
+  struct ViewLod {
+    int pressure_bias = 0;   // Brick-buffer pressure: 0..root level.
+    double time_bias = 0;    // Frame-time target: 0..root level, fractional.
+  };
+  std::map<uint64_t, ViewLod> view_lod_;
   Vec3 spacing_;
 };
 

@@ -71,7 +71,7 @@ TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
   const nlohmann::json report = nlohmann::json::parse(run.out);
   const auto& rows = report["rows"];
   ASSERT_GE(rows.size(), 3u * 8);  // 4 views x 2 modes at least, 3 frame kinds each.
-  int refined = 0, steady = 0, large_full = 0;
+  int refined = 0, interactive = 0, steady = 0, large_full = 0;
   double large_mb = 0;
   for (const auto& row : rows) large_mb = std::max(large_mb, row["brick_mb"].get<double>());
   for (const auto& row : rows) {
@@ -87,14 +87,23 @@ TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
     EXPECT_GE(row["passes"].get<int>(), 1);
     const std::string kind = row["frame_kind"];
     refined += kind == "refined";
-    if (row["brick_mb"].get<double>() == large_mb && kind != "cold" && kind != "refined") {
+    interactive += kind == "interactive";
+    if (kind == "interactive") {
+      // The bias it settled at: never below the setting's (0), never beyond the root level.
+      EXPECT_GE(row["lod_bias"].get<double>(), 0) << row.dump();
+      EXPECT_EQ(row["passes"].get<int>(), 10) << row.dump();
+    }
+    if (row["brick_mb"].get<double>() == large_mb && kind != "cold" && kind != "refined" &&
+        kind != "interactive") {
       ++large_full;
       steady += kind == "steady";
     }
   }
   // Refinement always completes (it needs only the ray fronts' bricks); with every brick fitting
-  // (the large buffer) full frames settle too. The small buffer may thrash: "unsteady".
-  EXPECT_EQ(refined * 3, static_cast<int>(rows.size()));
+  // (the large buffer) full frames settle too. The small buffer may thrash: "unsteady". Settings
+  // at lod_bias 0 also get an "interactive" row (frames with a frame-time target).
+  EXPECT_GT(interactive, 0);
+  EXPECT_EQ(refined * 3 + interactive, static_cast<int>(rows.size()));
   EXPECT_GT(large_full, 0);
   EXPECT_EQ(steady, large_full);
   // A refined image is close to the reference (same data; the step and float rounding differ).

@@ -419,5 +419,45 @@ TEST(VolumeRendererLodTest, RootLevelUsesTheRootBrick) {
   }
 }
 
+// The frame-time target steers the view's bias without asserting any time: a target no frame can
+// meet drives the bias up to the root level (the coarsest frames); an always-met target brings it
+// back down to the caller's bias; a view without a target is never affected.
+TEST(VolumeRendererLodTest, FrameTimeTargetSteersTheBias) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const SceneSpec spec = SmoothSpec({32, 32, 32}, {8, 8, 8});
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  const int root = rig->device->geometry().root_level();
+  ASSERT_GE(root, 2);
+  RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  const Camera camera = Standard(*rig, StandardView::kIso, Projection::kOrthographic, 32, 32);
+  FrameOptions hurried;
+  hurried.view = 7;
+  hurried.target_frame_ms = 1e-9;  // Unreachable: every frame is too slow.
+  FrameStats stats;
+  double previous = -1;
+  for (int frame = 0; frame < 40 && stats.lod_bias_used < root; ++frame) {
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(camera, params, hurried, &stats).ok());
+    EXPECT_GE(stats.lod_bias_used, previous);  // Never finer while too slow.
+    previous = stats.lod_bias_used;
+  }
+  EXPECT_EQ(stats.lod_bias_used, root);
+  // Another view of the same renderer keeps the caller's bias.
+  FrameOptions other;
+  other.view = 8;
+  FrameStats other_stats;
+  ASSERT_TRUE(rig->renderer->RenderFullFrame(camera, params, other, &other_stats).ok());
+  EXPECT_EQ(other_stats.lod_bias_used, 0);
+  // A target every frame meets: back down to the caller's bias, never below it.
+  FrameOptions relaxed = hurried;
+  relaxed.target_frame_ms = 1e12;
+  relaxed.lod_bias = 0.5;
+  for (int frame = 0; frame < 40 && stats.lod_bias_used > 0.5; ++frame) {
+    ASSERT_TRUE(rig->renderer->RenderFullFrame(camera, params, relaxed, &stats).ok());
+    EXPECT_GE(stats.lod_bias_used, 0.5);
+  }
+  EXPECT_EQ(stats.lod_bias_used, 0.5);
+}
+
 }  // namespace
 }  // namespace octoscope::render
