@@ -105,10 +105,13 @@ struct LoadedVolume {
   volume::VolumeInfo info;
   std::string description;
   volume::DataType stored_type = volume::DataType::kUint16;
-  std::vector<std::vector<uint16_t>> channels;  // Moved into the C++ loop once not needed here.
-  RenderParams dvr;                             // The bench's appearance per mode (BenchParams).
+  // The voxels as stored values: the reference renderer's input, copied for the C++ loop.
+  std::unique_ptr<render::ReferenceVolume> volume;
+  RenderParams dvr;  // The bench's appearance per mode (BenchParams).
   RenderParams mip;
 
+  int channel_count() const { return volume->channel_count(); }
+  std::span<const uint16_t> channel(int c) const { return volume->channel_data(c); }
   // The bench's parameters for `mode` at `step`.
   RenderParams Params(RenderMode mode, double step) const {
     RenderParams p = mode == RenderMode::kDvr ? dvr : mip;
@@ -117,7 +120,7 @@ struct LoadedVolume {
   }
 };
 
-// Reads every plane of `source` on all cores (sources are thread-safe) as stored values.
+// Reads all of `source` as stored values (ReferenceVolume::Load, the fixed 8/16-bit value map).
 Result<LoadedVolume> LoadVolume(io::VolumeSource& source, std::string description) {
   LoadedVolume v;
   v.info = source.info();
@@ -129,36 +132,10 @@ Result<LoadedVolume> LoadVolume(io::VolumeSource& source, std::string descriptio
   }
   const volume::ValueMap map = volume::FixedValueMap(dtype);
   v.stored_type = map.stored_type;
-  const int channels = v.info.channel_count();
-  const int64_t nz = v.info.size[2];
-  const uint64_t plane = v.info.PlaneVoxels();
-  v.channels.assign(channels, std::vector<uint16_t>(plane * nz));
-  std::atomic<int64_t> next{0};
-  std::vector<Status> errors(std::max(1u, std::thread::hardware_concurrency()));
-  auto work = [&](Status* error) {
-    std::vector<std::byte> file_plane(source.SlabBytes(1));
-    std::vector<std::byte> stored(plane * volume::BytesPerSample(map.stored_type));
-    for (int64_t job = next++; job < channels * nz; job = next++) {
-      const int c = static_cast<int>(job / nz);
-      const int64_t z = job % nz;
-      if (Status s = source.ReadSlab(c, z, 1, file_plane); !s.ok()) {
-        *error = s;
-        return;
-      }
-      volume::ConvertToStored(map, file_plane, stored);
-      uint16_t* dst = v.channels[c].data() + z * plane;
-      if (volume::BytesPerSample(map.stored_type) == 1) {
-        for (uint64_t i = 0; i < plane; ++i) dst[i] = static_cast<uint8_t>(stored[i]);
-      } else {
-        std::memcpy(dst, stored.data(), plane * 2);
-      }
-    }
-  };
-  std::vector<std::thread> threads;
-  for (size_t k = 1; k < errors.size(); ++k) threads.emplace_back(work, &errors[k]);
-  work(&errors[0]);
-  for (std::thread& t : threads) t.join();
-  for (const Status& s : errors) OCTO_RETURN_IF_ERROR(s);
+  const std::vector<volume::ValueMap> maps(v.info.channel_count(), map);
+  OCTO_ASSIGN_OR_RETURN(render::ReferenceVolume volume,
+                        render::ReferenceVolume::Load(source, maps, ~uint64_t{0}));
+  v.volume = std::make_unique<render::ReferenceVolume>(std::move(volume));
   return v;
 }
 
@@ -175,7 +152,8 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
   options.brick_size = {brick, brick, brick};
   options.bytes_per_sample = static_cast<int>(volume::BytesPerSample(v.stored_type));
   options.homogeneity_threshold = threshold;
-  for (const auto& ch : v.channels) {
+  for (int c = 0; c < v.channel_count(); ++c) {
+    const std::span<const uint16_t> ch = v.channel(c);
     const auto [lo, hi] = std::minmax_element(ch.begin(), ch.end());
     options.value_range.push_back(static_cast<uint32_t>(*hi - *lo));
   }
@@ -183,7 +161,7 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
   const uint64_t bytes = v.info.VoxelBytes();
   // Pages of 8 stored bricks (a page must hold at least one), as the test scenes use.
   const uint64_t stored_brick = static_cast<uint64_t>((brick + 2) * (brick + 2) * (brick + 2)) *
-                                v.channels.size() * options.bytes_per_sample;
+                                v.channel_count() * options.bytes_per_sample;
   t.store =
       std::make_unique<paging::MemoryPageStore>(std::max(stored_brick * 8, uint64_t{1} << 20));
   t.cache = std::make_unique<paging::PageCache>(t.store.get(), bytes + (uint64_t{256} << 20));
@@ -193,10 +171,10 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
   const size_t plane = static_cast<size_t>(n[0] * n[1]);
   const int sample_bytes = options.bytes_per_sample;
   std::vector<std::byte> narrow;
-  for (size_t c = 0; c < v.channels.size(); ++c) {
+  for (int c = 0; c < v.channel_count(); ++c) {
     for (int64_t z0 = 0; z0 < n[2]; z0 += brick) {
       const int64_t z1 = std::min(n[2], z0 + brick);
-      const uint16_t* first = v.channels[c].data() + plane * z0;
+      const uint16_t* first = v.channel(c).data() + plane * z0;
       const size_t count = plane * static_cast<size_t>(z1 - z0);
       std::span<const std::byte> data;
       if (sample_bytes == 1) {
@@ -206,8 +184,7 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
       } else {
         data = std::as_bytes(std::span<const uint16_t>(first, count));
       }
-      OCTO_RETURN_IF_ERROR(
-          t.tree->Insert(static_cast<int>(c), octree::Box{{0, 0, z0}, {n[0], n[1], z1}}, data));
+      OCTO_RETURN_IF_ERROR(t.tree->Insert(c, octree::Box{{0, 0, z0}, {n[0], n[1], z1}}, data));
     }
   }
   return t;
@@ -218,11 +195,10 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
 RenderParams BenchParams(const LoadedVolume& v, RenderMode mode) {
   static constexpr std::array<std::array<double, 3>, 4> kPalette = {
       {{0.2, 1, 0.3}, {1, 0.2, 0.8}, {0.2, 0.8, 1}, {1, 0.9, 0.2}}};
-  RenderParams params =
-      render::DefaultRenderParams(static_cast<int>(v.channels.size()), v.stored_type, mode);
-  for (size_t c = 0; c < v.channels.size(); ++c) {
+  RenderParams params = render::DefaultRenderParams(v.channel_count(), v.stored_type, mode);
+  for (int c = 0; c < v.channel_count(); ++c) {
     std::vector<uint64_t> histogram(65536, 0);
-    const auto& ch = v.channels[c];
+    const std::span<const uint16_t> ch = v.channel(c);
     for (size_t i = 0; i < ch.size(); i += 7) ++histogram[ch[i]];  // A 1/7 sample is plenty.
     const uint64_t total = (ch.size() + 6) / 7;
     auto percentile = [&](double p) {
@@ -239,7 +215,7 @@ RenderParams BenchParams(const LoadedVolume& v, RenderMode mode) {
     cp.window = hi - lo;
     cp.level = (hi + lo) / 2;
     cp.opacity_scale = 0.3;
-    if (c < v.info.channels.size() && v.info.channels[c].color) {
+    if (static_cast<size_t>(c) < v.info.channels.size() && v.info.channels[c].color) {
       const volume::Rgba& rgba = *v.info.channels[c].color;
       cp.color = {rgba.r / 255.0, rgba.g / 255.0, rgba.b / 255.0};
     } else {
@@ -866,19 +842,21 @@ int RunBenchRender(std::span<const std::string> args) {
                static_cast<int>(*reference_size), *reference_step);
   std::map<ReferenceKey, RenderImage> references;
   {
-    std::vector<std::vector<uint16_t>> copy = loaded->channels;
-    auto volume = render::ReferenceVolume::FromStored(loaded->info.size, spacing,
-                                                      loaded->stored_type, std::move(copy));
-    if (!volume.ok()) return Fail(volume.status().ToString());
-    auto rendered = RenderReferences(*volume, *loaded, keys, static_cast<int>(*reference_size),
-                                     *reference_step);
+    auto rendered = RenderReferences(*loaded->volume, *loaded, keys,
+                                     static_cast<int>(*reference_size), *reference_step);
     if (!rendered.ok()) return Fail(rendered.status().ToString());
     references = std::move(*rendered);
   }
 
-  // 5. The C++ loop takes the voxels over (the reference's copy is gone: two copies at most).
+  // 5. The C++ loop gets its own copy of the voxels (the reference's is dropped: two at most).
+  std::vector<std::vector<uint16_t>> voxels;
+  for (int c = 0; c < loaded->channel_count(); ++c) {
+    const std::span<const uint16_t> ch = loaded->channel(c);
+    voxels.emplace_back(ch.begin(), ch.end());
+  }
+  loaded->volume.reset();
   auto loop = render::CpuRaycaster::Create(loaded->info.size, spacing, loaded->stored_type,
-                                           std::move(loaded->channels));
+                                           std::move(voxels));
   if (!loop.ok()) return Fail(loop.status().ToString());
 
   // Large buffer: every brick of the tree (+ slack); small: an eighth of that (at least the

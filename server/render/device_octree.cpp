@@ -58,7 +58,7 @@ struct DeviceOctree::Impl {
   std::vector<uint8_t> is_dirty;
   std::set<uint32_t> retry;                            // Encoded childless; re-encode next Sync.
   std::unordered_map<uint32_t, uint32_t> group_owner;  // Mirrored child group -> parent id.
-  std::set<uint32_t> todo;                             // Ids to (re-)encode in this pass.
+  std::set<uint32_t> to_encode;                        // Ids to (re-)encode in this pass.
   std::unordered_map<uint32_t, octree::NodeSnapshot> snapshots;  // Read during this pass.
 
   // --- Brick buffer. ---
@@ -143,7 +143,7 @@ struct DeviceOctree::Impl {
     if (live[id] == 0) return;
     if (id != 0) {
       if (const auto it = group_owner.find(id / 8); it != group_owner.end())
-        todo.insert(it->second);
+        to_encode.insert(it->second);
     }
     const uint32_t group = octree::Word0ChildGroup(Entry(id)[0]);
     if (group != 0) {
@@ -208,13 +208,13 @@ struct DeviceOctree::Impl {
     MarkDirty(id);
   }
 
-  // Encodes every id in `todo` (and the pending retries) from its snapshot of this pass or a
+  // Encodes every id in `to_encode` (and the pending retries) from its snapshot of this pass or a
   // fresh read.
   void EncodePending() {
-    todo.insert(retry.begin(), retry.end());
-    while (!todo.empty()) {
-      const uint32_t id = *todo.begin();
-      todo.erase(todo.begin());
+    to_encode.insert(retry.begin(), retry.end());
+    while (!to_encode.empty()) {
+      const uint32_t id = *to_encode.begin();
+      to_encode.erase(to_encode.begin());
       if (id >= capacity_nodes() || live[id] == 0) continue;
       std::optional<octree::NodeSnapshot> snap;
       if (const auto it = snapshots.find(id); it != snapshots.end()) {
@@ -365,7 +365,7 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
     m.EnsureCapacity(snap->id);
     m.live[snap->id] = 1;
     m.key_of[snap->id] = snap->key;
-    m.todo.insert(snap->id);
+    m.to_encode.insert(snap->id);
     if (snap->has_children()) {
       for (uint32_t o = 0; o < 8; ++o) queue.push_back(snap->child_group * 8 + o);
     }
@@ -405,7 +405,7 @@ Status DeviceOctree::Sync(SyncStats* stats) {
     }
     m.live[id] = 1;
     m.key_of[id] = snap->key;
-    m.todo.insert(id);
+    m.to_encode.insert(id);
     m.snapshots.insert_or_assign(id, std::move(*snap));
   }
   m.EncodePending();

@@ -29,6 +29,7 @@
 #include <array>
 #include <cstdint>
 #include <optional>
+#include <span>
 #include <utility>
 #include <vector>
 
@@ -71,6 +72,9 @@ class ReferenceVolume {
   uint16_t Value(int channel, int64_t x, int64_t y, int64_t z) const {
     return channels_[channel][static_cast<size_t>((z * size_[1] + y) * size_[0] + x)];
   }
+
+  // Channel `channel`'s stored values, x fastest. REQUIRES: 0 <= channel < channel_count().
+  std::span<const uint16_t> channel_data(int channel) const { return channels_[channel]; }
 
   // Trilinear interpolation of `channel` at physical position p, clamped to the edge voxels.
   // REQUIRES: p finite.
