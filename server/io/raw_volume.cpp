@@ -27,26 +27,11 @@ constexpr uint64_t kInterleavedChunkBytes = uint64_t{4} << 20;
 
 std::string Num(uint64_t v) { return std::to_string(v); }
 
-// Owns a read-only file descriptor.
-class Fd {
- public:
-  explicit Fd(int fd) : fd_(fd) {}
-  ~Fd() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  Fd(const Fd&) = delete;
-  Fd& operator=(const Fd&) = delete;
-  int get() const { return fd_; }
-
- private:
-  int fd_;
-};
-
 class RawVolume final : public VolumeSource {
  public:
   // REQUIRES: `info` validated; the file holds header_bytes + info.VoxelBytes() bytes.
   // `file_size`: the size checked at open (>= header + voxel bytes).
-  RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::unique_ptr<Fd> fd,
+  RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::unique_ptr<ScopedFd> fd,
             uint64_t file_size, const RawLayout& layout)
       : info_(std::move(info)),
         path_(std::move(path)),
@@ -121,7 +106,7 @@ class RawVolume final : public VolumeSource {
 
   const volume::VolumeInfo info_;
   const std::filesystem::path path_;
-  const std::unique_ptr<Fd> fd_;
+  const std::unique_ptr<ScopedFd> fd_;
   const LazyFileMapping mapping_;  // Of the file size checked at open; needs fd_ until mapped.
   const uint64_t header_bytes_;
   const bool interleaved_;
@@ -184,7 +169,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
     if (err == ENOENT) return NotFoundError(name + ": raw data file not found");
     return IoError(name + ": cannot open raw data file: " + std::strerror(err));
   }
-  auto fd = std::make_unique<Fd>(raw_fd);
+  auto fd = std::make_unique<ScopedFd>(raw_fd);
   struct stat st;
   if (::fstat(fd->get(), &st) != 0) {
     return IoError(name + ": cannot stat raw data file: " + std::strerror(errno));
