@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "protocol/raw_sidecar.h"
+#include "protocol/zarr_json.h"
 #include "util/strings.h"
 
 namespace octoscope::app {
@@ -10,6 +11,8 @@ namespace octoscope::app {
 void AddVolumeFlags(Flags& flags) {
   flags.AddValue("series", "N", "which image/series of a multi-series file", "0");
   flags.AddValue("time", "T", "which time point", "0");
+  flags.AddValue("level", "N",
+                 "which resolution level of a multiscale file (OME-Zarr, Imaris; 0 = finest)", "0");
   flags.AddValue("spacing", "X,Y,Z",
                  "override the voxel spacing in micrometres (use '-' to keep an axis, e.g. -,-,5)");
 }
@@ -18,8 +21,10 @@ Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags) {
   io::OpenOptions options;
   OCTO_ASSIGN_OR_RETURN(int64_t series, flags.GetInt("series", 0, 0, 1 << 30));
   OCTO_ASSIGN_OR_RETURN(int64_t time, flags.GetInt("time", 0, 0, 1 << 30));
+  OCTO_ASSIGN_OR_RETURN(int64_t level, flags.GetInt("level", 0, 0, 1 << 30));
   options.series = static_cast<int>(series);
   options.time = static_cast<int>(time);
+  options.level = static_cast<int>(level);
   if (auto text = flags.Get("spacing")) {
     auto parts = Split(*text, ',');
     if (parts.size() != 3) return InvalidArgumentError("--spacing: expected X,Y,Z");
@@ -34,6 +39,7 @@ Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags) {
     }
   }
   options.load_raw_sidecar = protocol::LoadRawSidecar;
+  options.zarr_json = protocol::MakeZarrJsonParsers();
   return options;
 }
 

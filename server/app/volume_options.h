@@ -1,6 +1,6 @@
-// Shared command-line options for opening a volume (--series, --time, --spacing), used by every
-// subcommand that takes an INPUT, and the wiring of io::OpenOptions (JSON sidecars parsed by
-// protocol/).
+// Shared command-line options for opening a volume (--series, --time, --level, --spacing), used
+// by every subcommand that takes an INPUT, and the wiring of io::OpenOptions (JSON sidecars and
+// Zarr metadata parsed by protocol/).
 //
 // Thread safety: not thread-safe; used at start-up.
 #ifndef OCTOSCOPE_APP_VOLUME_OPTIONS_H_
@@ -12,7 +12,7 @@
 
 namespace octoscope::app {
 
-// Declares --series, --time and --spacing on `flags`.
+// Declares --series, --time, --level and --spacing on `flags`.
 void AddVolumeFlags(Flags& flags);
 
 // Builds the OpenOptions from parsed flags. Errors name the malformed flag.

@@ -46,6 +46,11 @@ class VolumeSource {
     return std::nullopt;
   }
 
+  // Planes per slab at which reading is cheapest: formats stored in chunks along z (OME-Zarr,
+  // Imaris) decode whole chunks, so slabs whose z0 and nz are multiples of this decode each chunk
+  // once. 1 for formats stored plane by plane.
+  virtual int64_t PreferredSlabPlanes() const { return 1; }
+
   // Bytes of a slab of `nz` planes of one channel.
   uint64_t SlabBytes(int64_t nz) const;
 };

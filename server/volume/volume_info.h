@@ -2,7 +2,8 @@
 // channels, sample type, physical spacing, and which series/time point of the file it shows.
 //
 // Invariants (checked by Validate()): every size >= 1; channels non-empty; spacing, where known,
-// finite and > 0; 0 <= series < series_count; 0 <= time < time_points.
+// finite and > 0; 0 <= series < series_count; 0 <= time < time_points; 0 <= level < level_count;
+// display windows, where given, finite.
 //
 // Thread safety: a plain value type.
 #ifndef OCTOSCOPE_VOLUME_VOLUME_INFO_H_
@@ -25,13 +26,25 @@ struct Rgba {
   bool operator==(const Rgba&) const = default;
 };
 
+// The display window a file recommends for a channel, in the file's own units (OME-Zarr
+// `omero.channels[].window`, Imaris `ColorRange`): values <= start show black, >= end full
+// colour. `min`/`max`: the range a window slider should span, where the file says.
+struct DisplayWindow {
+  double start = 0;
+  double end = 0;
+  std::optional<double> min, max;
+  bool operator==(const DisplayWindow&) const = default;
+};
+
 struct ChannelInfo {
-  std::string name;           // As the file names it; "" when unnamed.
-  std::optional<Rgba> color;  // As the file gives it; nullopt when none.
+  std::string name;                                    // As the file names it; "" when unnamed.
+  std::optional<Rgba> color;                           // As the file gives it; nullopt when none.
+  std::optional<DisplayWindow> window = std::nullopt;  // As the file gives it, else none.
 };
 
 struct VolumeInfo {
-  std::string format;  // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw".
+  // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw", "ome-zarr", "zarr", "imaris".
+  std::string format;
   std::array<int64_t, 3> size{1, 1, 1};  // Voxels along x, y, z.
   std::vector<ChannelInfo> channels;
   DataType dtype = DataType::kUint16;               // The file's sample type.
@@ -40,6 +53,8 @@ struct VolumeInfo {
   int series = 0;
   int time_points = 1;
   int time = 0;
+  int level_count = 1;  // Resolution levels the file stores (multiscale formats); 0 = finest.
+  int level = 0;
 
   int channel_count() const { return static_cast<int>(channels.size()); }
   // Voxels in one xy plane of one channel.
