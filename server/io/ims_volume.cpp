@@ -68,7 +68,9 @@ std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, c
       if (n != 1) return std::nullopt;
       Hdf5Id mem(H5Tcopy(H5T_C_S1));
       char* text = nullptr;
+      // The memory type takes the file's character set (HDF5 converts none between them).
       if (!mem.valid() || H5Tset_size(mem.get(), H5T_VARIABLE) < 0 ||
+          H5Tset_cset(mem.get(), H5Tget_cset(type.get())) < 0 ||
           H5Aread(a.get(), mem.get(), &text) < 0) {
         H5Eclear2(H5E_DEFAULT);
         return std::nullopt;

@@ -2,7 +2,8 @@
 // file's own units. When the source offers its planes in place (VolumeSource::MappedPlane), they
 // are summed there, zero-copy, by a few threads, each summing its share of the (z, c) planes into
 // its own per-channel sums, merged at the end. Otherwise the source is streamed slab by slab
-// (memory: two slabs), one thread reading while the calling thread sums.
+// (memory: two slabs; chunk-aligned for chunked sources), one thread reading while the calling
+// thread sums.
 // Integer means are exact (integer sums, one division); float means use compensated (Neumaier)
 // summation, accurate to a few units in the last place of a double. NaNs are counted, not summed.
 //
@@ -36,6 +37,10 @@ struct VolumeStats {
 struct StatsOptions {
   // Target bytes per slab read (rounded to whole planes, at least one plane).
   uint64_t slab_bytes = uint64_t{4} << 20;
+  // Sources stored in chunks along z (VolumeSource::PreferredSlabPlanes() > 1) are read in slabs
+  // of whole chunk depths when one such slab is at most this large (else the source's chunk
+  // cache serves the thinner slabs).
+  uint64_t max_aligned_slab_bytes = uint64_t{256} << 20;
   // Called after each slab with (planes done, planes total) over all channels.
   std::function<void(uint64_t, uint64_t)> progress;
   // Threads summing mapped planes in place, the calling thread included; 0: the hardware's
