@@ -9,15 +9,9 @@
 #   SCALE 1 (default): sparse 1536x1536x448 x1 (2.1 GB), dense 1024x1024x512 x3 (3.2 GB).
 #   SCALE 0.25 etc. shrinks z for a quick run.
 set -euo pipefail
-root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
-bin="$build/octoscope"
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 scale="${1:-1}"
-work="${OCTOSCOPE_BENCH_DIR:-$root/out/bench}"
-mkdir -p "$work"
-[ -x "$bin" ] || bash "$root/deploy/build.sh" >/dev/null
 
-now() { date +%s.%N; }
 field() { python3 -c "import json,sys; print(json.loads(sys.argv[1])[sys.argv[2]])" "$1" "$2"; }
 
 run_case() {

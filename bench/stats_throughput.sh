@@ -8,16 +8,11 @@
 # Usage: bash bench/stats_throughput.sh [SIZE_X,Y,Z] [CHANNELS] [REPEATS]
 #   default 1024,1024,256 x 2 channels uint16 = 1 GiB, 3 repeats (median reported).
 set -euo pipefail
-root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
-bin="$build/octoscope"
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 size="${1:-1024,1024,256}"
 channels="${2:-2}"
 repeats="${3:-3}"
-work="${OCTOSCOPE_BENCH_DIR:-$root/out/bench}"
-mkdir -p "$work"
 
-[ -x "$bin" ] || bash "$root/deploy/build.sh" >/dev/null
 file="$work/stats-bench.ome.tif"
 reference="$work/stats-bench.reference.json"
 if [ ! -f "$file" ] || [ ! -f "$reference" ] || [ "$(cat "$work/stats-bench.params" 2>/dev/null)" != "$size $channels" ]; then
@@ -28,7 +23,6 @@ if [ ! -f "$file" ] || [ ! -f "$reference" ] || [ "$(cat "$work/stats-bench.para
 fi
 bytes=$(stat -c %s "$file")
 
-now() { date +%s.%N; }
 cat "$file" > /dev/null  # Warm the page cache once.
 cat_s=(); stats_s=()
 for _ in $(seq "$repeats"); do
@@ -37,7 +31,6 @@ for _ in $(seq "$repeats"); do
   cat_s+=("$(awk -v a="$t0" -v b="$t1" 'BEGIN {print b - a}')")
   stats_s+=("$(awk -v a="$t1" -v b="$t2" 'BEGIN {print b - a}')")
 done
-median() { printf '%s\n' "$@" | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 cat_med=$(median "${cat_s[@]}")
 stats_med=$(median "${stats_s[@]}")
 cat_mbs=$(awk -v b="$bytes" -v s="$cat_med" 'BEGIN {print b / s / 1e6}')
