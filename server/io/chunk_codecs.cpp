@@ -216,6 +216,7 @@ Status CheckCrc32cTrailer(std::span<const std::byte> in) {
 }
 
 void Unshuffle(std::span<const std::byte> in, size_t element_size, std::span<std::byte> out) {
+  if (in.empty()) return;  // memcpy of nothing may still not take the null data() of empties.
   const size_t n = in.size() / element_size;
   if (element_size <= 1 || n <= 1) {
     std::memcpy(out.data(), in.data(), in.size());

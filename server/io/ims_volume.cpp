@@ -407,7 +407,12 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   if (!HasHdf5Signature(path)) {
     return CorruptError(name + ": not an HDF5 file (an Imaris .ims file is HDF5)");
   }
-  Result<hid_t> opened = OCTO_H5(H5Fopen(name.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT));
+  // Read without HDF5's file lock: a reader's lock would stop an acquisition from reopening the
+  // file for writing (and a writer's lock would refuse us).
+  OCTO_ASSIGN_OR_RETURN(hid_t raw_fapl, OCTO_H5(H5Pcreate(H5P_FILE_ACCESS)));
+  Hdf5Id fapl(raw_fapl);
+  OCTO_RETURN_IF_ERROR(OCTO_H5(H5Pset_file_locking(fapl.get(), false, true)).status());
+  Result<hid_t> opened = OCTO_H5(H5Fopen(name.c_str(), H5F_ACC_RDONLY, fapl.get()));
   if (!opened.ok()) return opened.status().WithContext(name);
   Hdf5Id file(*opened);
   const hid_t f = file.get();
