@@ -2,12 +2,14 @@
 # Benchmark: `octoscope info --stats` throughput on a >= 1 GB blosc-lz4 OME-Zarr, as a ratio
 # against `cat` of its chunk files in the same run (both from the page cache: the store is read
 # once before timing, so this measures decoding + summing against the cheapest possible reader of
-# the same bytes). Also reported: the ratio with one decoding thread (--decode-threads 1), and the
-# error of the statistics against the generator's own (computed from the generated voxels).
+# the same bytes). Also reported: the ratio with one decoding thread (--decode-threads 1), the
+# same statistics computed by python3-zarr + numpy (the reference implementation, slab of 64 planes
+# at a time), and the error of the statistics against the generator's own (computed from the
+# generated voxels).
 #
 # The store is written by python3-zarr/numcodecs (Debian): 2 channels uint16, C-ordered chunks
 # (1, 64, 256, 256), blosc lz4 level 5 with byte shuffle (numcodecs' defaults), NGFF 0.4 metadata.
-# Voxels: a smooth specimen-like pattern plus noise, compressing about 2.5:1 as microscopy does.
+# Voxels: a smooth specimen-like pattern plus Poisson noise (compresses about 1.8:1).
 #
 # Usage: bash bench/zarr_stats_throughput.sh [SIZE_X,Y,Z] [CHANNELS] [REPEATS]
 #   default 1024,1024,256 x 2 channels uint16 = 1 GiB decoded, 3 repeats (median reported).
@@ -69,22 +71,39 @@ chunk_list="$work/zarr-bench.chunks"
 find "$store" -type f ! -name '.z*' > "$chunk_list"
 
 xargs -a "$chunk_list" cat > /dev/null  # Warm the page cache once.
-cat_s=(); stats_s=(); one_s=()
+python_stats() {
+  "$python" - "$store" <<'PY'
+import sys, numpy as np, zarr
+a = zarr.open_group(sys.argv[1], mode="r")["0"]
+for c in range(a.shape[0]):
+    lo, hi, total = None, None, 0
+    for z0 in range(0, a.shape[1], 64):
+        s = a[c, z0:z0 + 64]
+        lo = s.min() if lo is None else min(lo, s.min())
+        hi = s.max() if hi is None else max(hi, s.max())
+        total += int(s.sum(dtype=np.int64))
+PY
+}
+cat_s=(); stats_s=(); one_s=(); py_s=()
 for _ in $(seq "$repeats"); do
   t0=$(now); xargs -a "$chunk_list" cat > /dev/null; t1=$(now)
   "$bin" info --stats --json "$store" > "$work/zarr-bench.out.json"; t2=$(now)
   "$bin" info --stats --json --decode-threads 1 "$store" > /dev/null; t3=$(now)
+  python_stats; t4=$(now)
   cat_s+=("$(awk -v a="$t0" -v b="$t1" 'BEGIN {print b - a}')")
   stats_s+=("$(awk -v a="$t1" -v b="$t2" 'BEGIN {print b - a}')")
   one_s+=("$(awk -v a="$t2" -v b="$t3" 'BEGIN {print b - a}')")
+  py_s+=("$(awk -v a="$t3" -v b="$t4" 'BEGIN {print b - a}')")
 done
 cat_med=$(median "${cat_s[@]}")
 stats_med=$(median "${stats_s[@]}")
 one_med=$(median "${one_s[@]}")
+py_med=$(median "${py_s[@]}")
 # Throughput in decoded bytes per second for octoscope; cat moves the stored (compressed) bytes.
 cat_mbs=$(awk -v b="$stored" -v s="$cat_med" 'BEGIN {print b / s / 1e6}')
 stats_mbs=$(awk -v b="$decoded" -v s="$stats_med" 'BEGIN {print b / s / 1e6}')
 one_mbs=$(awk -v b="$decoded" -v s="$one_med" 'BEGIN {print b / s / 1e6}')
+py_mbs=$(awk -v b="$decoded" -v s="$py_med" 'BEGIN {print b / s / 1e6}')
 
 error=$("$python" - "$reference" "$work/zarr-bench.out.json" <<'PY'
 import json, sys
@@ -98,8 +117,10 @@ printf 'store: %s (%d decoded bytes, %d stored bytes, ratio %.2f)\n' "$store" "$
 printf 'cat chunk files:          %8.3f s  %8.1f MB/s stored  (median of %d)\n' "$cat_med" "$cat_mbs" "$repeats"
 printf 'info --stats:             %8.3f s  %8.1f MB/s decoded (median of %d)\n' "$stats_med" "$stats_mbs" "$repeats"
 printf 'info --stats, 1 decoder:  %8.3f s  %8.1f MB/s decoded (median of %d)\n' "$one_med" "$one_mbs" "$repeats"
-printf 'time ratio cat/stats: %.2f   (1 decoding thread: %.2f)\n' \
+printf 'python3-zarr + numpy:     %8.3f s  %8.1f MB/s decoded (median of %d)\n' "$py_med" "$py_mbs" "$repeats"
+printf 'time ratio cat/stats: %.2f   (1 decoding thread: %.2f)   python3-zarr/stats: %.2f\n' \
   "$(awk -v a="$cat_med" -v b="$stats_med" 'BEGIN {print a / b}')" \
-  "$(awk -v a="$cat_med" -v b="$one_med" 'BEGIN {print a / b}')"
+  "$(awk -v a="$cat_med" -v b="$one_med" 'BEGIN {print a / b}')" \
+  "$(awk -v a="$py_med" -v b="$stats_med" 'BEGIN {print a / b}')"
 printf 'max |error| of min/max/mean vs generator: %s\n' "$error"
 printf 'load average: %s\n' "$(cut -d' ' -f1-3 /proc/loadavg)"

@@ -27,13 +27,14 @@
 #include <vector>
 
 #include "util/result.h"
+#include "util/uninitialized_bytes.h"
 
 namespace octoscope::io {
 
 class ChunkCache {
  public:
   // A decoded chunk; nullptr stands for a chunk absent from the file (it reads as the fill value).
-  using Data = std::shared_ptr<const std::vector<std::byte>>;
+  using Data = std::shared_ptr<const UninitializedBytes>;
   using Decoder = std::function<Result<Data>()>;
 
   explicit ChunkCache(uint64_t budget_bytes) : budget_(budget_bytes) {}

@@ -10,6 +10,7 @@
 #include <thread>
 #include <utility>
 
+#include "io/buffer_pool.h"
 #include "io/chunk_cache.h"
 #include "util/checked_math.h"
 
@@ -67,6 +68,7 @@ class ChunkedVolume final : public VolumeSource {
         fill_(SampleBytes(info_.dtype, options.fill_value)),
         chunk_bytes_(layout_.ChunkElements() * bps_),
         cache_(options.cache_bytes),
+        buffers_(BufferPool::Create(static_cast<size_t>(threads) + 2)),
         free_helpers_(threads - 1) {
     cx_ = layout_.chunk[layout_.x_dim];
     cy_ = layout_.chunk[layout_.y_dim];
@@ -170,7 +172,7 @@ class ChunkedVolume final : public VolumeSource {
     const uint64_t key = ((static_cast<uint64_t>(ci) * grid_z_ + zc) * grid_y_ + yc) * grid_x_ + xc;
 
     auto decode = [&]() -> Result<ChunkCache::Data> {
-      auto buffer = std::make_shared<std::vector<std::byte>>(chunk_bytes_);
+      std::shared_ptr<UninitializedBytes> buffer = buffers_->Take(chunk_bytes_);
       OCTO_ASSIGN_OR_RETURN(bool present, reader_->ReadChunk(index, *buffer));
       if (!present) return ChunkCache::Data();
       return ChunkCache::Data(std::move(buffer));
@@ -228,6 +230,7 @@ class ChunkedVolume final : public VolumeSource {
   int64_t cx_, cy_, cz_, cc_, ct_;
   int64_t grid_x_, grid_y_, grid_z_;
   ChunkCache cache_;
+  const std::shared_ptr<BufferPool> buffers_;  // Decoded-chunk buffers, reused.
   std::atomic<int> free_helpers_;  // Decoding threads available beyond the readers' own.
 };
 

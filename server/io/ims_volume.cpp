@@ -22,6 +22,7 @@
 #include "util/byte_swap.h"
 #include "util/checked_math.h"
 #include "util/strings.h"
+#include "util/uninitialized_bytes.h"
 
 namespace octoscope::io {
 namespace {
@@ -234,18 +235,18 @@ class ImarisChunkReader final : public ChunkReader {
                           " bytes, far more than its " + Num(static_cast<int64_t>(out.size())) +
                           " decoded bytes");
     }
-    std::vector<std::byte> raw(static_cast<size_t>(stored));
+    UninitializedBytes raw(static_cast<size_t>(stored));
     uint32_t skipped = 0;  // Bit i set: filter i was not applied to this chunk.
     OCTO_RETURN_IF_ERROR(
         OCTO_H5(H5Dread_chunk(ch.dataset.get(), H5P_DEFAULT, offset.data(), &skipped, raw.data()))
             .status()
             .WithContext(where));
-    std::vector<std::byte> scratch;
+    UninitializedBytes scratch;
     std::span<const std::byte> cur = raw;
     for (size_t k = ch.filters.size(); k-- > 0;) {
       if (skipped & (1u << k)) continue;
       // Every supported filter decodes to the chunk's full size.
-      std::vector<std::byte> next(out.size());
+      UninitializedBytes next(out.size());
       Status s;
       if (ch.filters[k] == H5Z_FILTER_DEFLATE) {
         s = DecodeChunk(ChunkCodec::kZlib, cur, next);

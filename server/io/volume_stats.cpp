@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "util/target_clones.h"
+#include "util/uninitialized_bytes.h"
 
 namespace octoscope::io {
 namespace {
@@ -135,7 +136,7 @@ struct Slab {
   int channel = 0;
   int64_t z0 = 0;
   int64_t nz = 0;
-  std::vector<std::byte> data;
+  UninitializedBytes data;  // Overwritten by each read: never zero-filled.
 };
 
 // Adds the sums of `from` into `into`. Integer sums add exactly; compensated float sums add their

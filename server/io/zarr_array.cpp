@@ -14,9 +14,11 @@
 #include <system_error>
 #include <utility>
 
+#include "io/buffer_pool.h"
 #include "util/byte_swap.h"
 #include "util/checked_math.h"
 #include "util/file_reading.h"
+#include "util/uninitialized_bytes.h"
 
 namespace octoscope::io {
 namespace {
@@ -73,7 +75,7 @@ Status DecodeEncoded(const ZarrChunkEncoding& encoding, size_t bps,
     OCTO_RETURN_IF_ERROR(DecodeChunk(codecs[0], cur, out));
   } else {
     // Checksums applied before the compressor: each added 4 bytes.
-    std::vector<std::byte> inner(out.size() + 4 * static_cast<size_t>(k));
+    UninitializedBytes inner(out.size() + 4 * static_cast<size_t>(k));
     OCTO_RETURN_IF_ERROR(DecodeChunk(codecs[k], cur, inner));
     std::span<const std::byte> rest = inner;
     for (int j = k - 1; j >= 0; --j) {
@@ -127,9 +129,10 @@ class ZarrChunkReader final : public ChunkReader {
         return CorruptError(path.string() + ": chunk file holds " + Num(file.second) +
                             " bytes, far more than its " + Num(out.size()) + " decoded bytes");
       }
-      std::vector<std::byte> encoded(static_cast<size_t>(file.second));
-      OCTO_RETURN_IF_ERROR(ReadFully(file.first->get(), 0, encoded, path.string()));
-      Status s = DecodeEncoded(meta_.encoding, bps_, encoded, out);
+      std::shared_ptr<UninitializedBytes> encoded =
+          buffers_->Take(static_cast<size_t>(file.second));
+      OCTO_RETURN_IF_ERROR(ReadFully(file.first->get(), 0, *encoded, path.string()));
+      Status s = DecodeEncoded(meta_.encoding, bps_, *encoded, out);
       if (!s.ok()) return s.WithContext(path.string());
       return true;
     }
@@ -176,9 +179,9 @@ class ZarrChunkReader final : public ChunkReader {
       return CorruptError(where + " lies outside the shard (bytes " + Num(offset) + "+" +
                           Num(nbytes) + " of " + Num(file.second) + ")");
     }
-    std::vector<std::byte> encoded(static_cast<size_t>(nbytes));
-    OCTO_RETURN_IF_ERROR(ReadFully(file.first->get(), offset, encoded, path.string()));
-    Status st = DecodeEncoded(s.inner, bps_, encoded, out);
+    std::shared_ptr<UninitializedBytes> encoded = buffers_->Take(static_cast<size_t>(nbytes));
+    OCTO_RETURN_IF_ERROR(ReadFully(file.first->get(), offset, *encoded, path.string()));
+    Status st = DecodeEncoded(s.inner, bps_, *encoded, out);
     if (!st.ok()) return st.WithContext(where);
     return true;
   }
@@ -200,7 +203,7 @@ class ZarrChunkReader final : public ChunkReader {
       return CorruptError(path.string() + ": shard of " + Num(size) +
                           " bytes is shorter than its index of " + Num(index_bytes));
     }
-    std::vector<std::byte> raw(static_cast<size_t>(index_bytes));
+    UninitializedBytes raw(static_cast<size_t>(index_bytes));
     OCTO_RETURN_IF_ERROR(
         ReadFully(fd.get(), s.index_at_end ? size - index_bytes : 0, raw, path.string()));
     if (s.index_crc32c) {
@@ -225,6 +228,8 @@ class ZarrChunkReader final : public ChunkReader {
   const fs::path dir_;
   const ZarrArrayMetadata meta_;
   const size_t bps_;
+  // Encoded-chunk buffers, reused (a few per decoding thread at most).
+  const std::shared_ptr<BufferPool> buffers_ = BufferPool::Create(16);
   std::vector<int64_t> inner_per_shard_;  // Inner chunks per shard along each dim.
   uint64_t inner_count_ = 1;              // Inner chunks per shard.
   std::mutex mutex_;

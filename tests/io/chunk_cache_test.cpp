@@ -14,7 +14,7 @@ namespace {
 ChunkCache::Decoder Bytes(size_t n, std::atomic<int>* calls = nullptr) {
   return [n, calls]() -> Result<ChunkCache::Data> {
     if (calls) ++*calls;
-    return ChunkCache::Data(std::make_shared<std::vector<std::byte>>(n, std::byte{1}));
+    return ChunkCache::Data(std::make_shared<UninitializedBytes>(n, std::byte{1}));
   };
 }
 
@@ -24,7 +24,7 @@ TEST(ChunkCache, ConcurrentRequestsShareOneDecode) {
   auto slow = [&]() -> Result<ChunkCache::Data> {
     ++calls;
     std::this_thread::sleep_for(std::chrono::milliseconds(50));
-    return ChunkCache::Data(std::make_shared<std::vector<std::byte>>(10));
+    return ChunkCache::Data(std::make_shared<UninitializedBytes>(10));
   };
   std::vector<std::thread> threads;
   std::atomic<int> ok{0};
