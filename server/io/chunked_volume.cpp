@@ -78,6 +78,7 @@ class ChunkedVolume final : public VolumeSource {
     grid_x_ = CeilDiv(info_.size[0], cx_);
     grid_y_ = CeilDiv(info_.size[1], cy_);
     grid_z_ = CeilDiv(info_.size[2], cz_);
+    whole_planes_ = WholePlanes();
   }
 
   const volume::VolumeInfo& info() const override { return info_; }
@@ -171,6 +172,15 @@ class ChunkedVolume final : public VolumeSource {
     const uint64_t units = static_cast<uint64_t>(ze - zb);
     const uint64_t key = ((static_cast<uint64_t>(ci) * grid_z_ + zc) * grid_y_ + yc) * grid_x_ + xc;
 
+    if (whole_planes_ && units == total_units && c_units == 1 && z_units == cz_) {
+      // The chunk is exactly planes zb..ze-1 of the slab, stored as the slab stores them: decode
+      // it in place (no copy, no cache: nothing else in a pass needs it).
+      const size_t at = static_cast<size_t>((zb - z0) * info_.PlaneVoxels() * bps_);
+      std::span<std::byte> part = out.subspan(at, static_cast<size_t>(chunk_bytes_));
+      OCTO_ASSIGN_OR_RETURN(bool present, reader_->ReadChunk(index, part));
+      if (!present) FillSamples(part);
+      return Status::Ok();
+    }
     auto decode = [&]() -> Result<ChunkCache::Data> {
       std::shared_ptr<UninitializedBytes> buffer = buffers_->Take(chunk_bytes_);
       OCTO_ASSIGN_OR_RETURN(bool present, reader_->ReadChunk(index, *buffer));
@@ -186,12 +196,7 @@ class ChunkedVolume final : public VolumeSource {
       for (int64_t z = zb; z < ze; ++z) {
         for (int64_t y = yb; y < ye; ++y) {
           std::byte* dst = out.data() + static_cast<size_t>((((z - z0) * Y + y) * X + xb) * bps_);
-          if (std::all_of(fill_.begin(), fill_.begin() + bps_,
-                          [](std::byte b) { return b == std::byte{0}; })) {
-            std::memset(dst, 0, static_cast<size_t>(run) * bps_);
-          } else {
-            for (int64_t i = 0; i < run; ++i) std::memcpy(dst + i * bps_, fill_.data(), bps_);
-          }
+          FillSamples({dst, static_cast<size_t>(run) * bps_});
         }
       }
     } else {
@@ -220,6 +225,36 @@ class ChunkedVolume final : public VolumeSource {
     return Status::Ok();
   }
 
+  // Writes the fill value into every sample of `part`.
+  void FillSamples(std::span<std::byte> part) const {
+    if (std::all_of(fill_.begin(), fill_.begin() + bps_,
+                    [](std::byte b) { return b == std::byte{0}; })) {
+      std::memset(part.data(), 0, part.size());
+      return;
+    }
+    for (size_t i = 0; i + bps_ <= part.size(); i += bps_) {
+      std::memcpy(part.data() + i, fill_.data(), bps_);
+    }
+  }
+
+  // True when a decoded chunk is a run of whole planes laid out as a slab: x and y span the
+  // image exactly, C order z, y, x, every other dim one element deep.
+  bool WholePlanes() const {
+    const std::vector<int64_t>& s = layout_.strides;
+    if (cx_ != info_.size[0] || cy_ != info_.size[1] || s[layout_.x_dim] != 1 ||
+        s[layout_.y_dim] != cx_ || (layout_.z_dim >= 0 && s[layout_.z_dim] != cx_ * cy_)) {
+      return false;
+    }
+    for (size_t d = 0; d < layout_.chunk.size(); ++d) {
+      const int dim = static_cast<int>(d);
+      if (dim != layout_.x_dim && dim != layout_.y_dim && dim != layout_.z_dim &&
+          layout_.chunk[d] != 1) {
+        return false;
+      }
+    }
+    return true;
+  }
+
   const volume::VolumeInfo info_;
   const ChunkLayout layout_;
   const std::unique_ptr<ChunkReader> reader_;
@@ -229,6 +264,7 @@ class ChunkedVolume final : public VolumeSource {
   const uint64_t chunk_bytes_;
   int64_t cx_, cy_, cz_, cc_, ct_;
   int64_t grid_x_, grid_y_, grid_z_;
+  bool whole_planes_ = false;  // Chunks are whole planes: decoded in place when read whole.
   ChunkCache cache_;
   const std::shared_ptr<BufferPool> buffers_;  // Decoded-chunk buffers, reused.
   std::atomic<int> free_helpers_;  // Decoding threads available beyond the readers' own.

@@ -200,6 +200,19 @@ TEST(ChunkedVolume, EachChunkDecodedOncePerPass) {
   }
 }
 
+TEST(ChunkedVolume, WholePlaneChunksDecodeInPlace) {
+  // Chunks of whole planes (as Imaris and many Zarr writers store them), read aligned (in place),
+  // thinner (through the cache), across the partial last chunk, with absent chunks.
+  for (int64_t nz : {4, 8, 1, 3, 10}) {
+    SCOPED_TRACE(nz);
+    TestVolume s =
+        Make("czyx", {{'c', 2}, {'z', 10}, {'y', 9}, {'x', 7}},
+             {{'c', 1}, {'z', 4}, {'y', 9}, {'x', 7}}, {}, 0, {{0, 1, 0, 0}, {1, 1, 0, 0}});
+    ExpectPattern(*s.source, nz, 0, {{1, 0, 0}}, {4, 9, 7});
+    EXPECT_EQ(s.reader->MaxDecodes(), 1);
+  }
+}
+
 TEST(ChunkedVolume, PreferredSlabPlanesIsTheChunkDepth) {
   TestVolume s = Make("zyx", {{'z', 12}, {'y', 9}, {'x', 9}}, {{'z', 5}, {'y', 4}, {'x', 4}});
   EXPECT_EQ(s.source->PreferredSlabPlanes(), 5);
