@@ -46,23 +46,26 @@ bool LinkExists(hid_t loc, const std::string& path) {
   return r > 0;
 }
 
+// Clears the error stack a failed attribute lookup left; the attribute counts as absent.
+std::optional<std::string> NoAttribute() {
+  H5Eclear2(H5E_DEFAULT);
+  return std::nullopt;
+}
+
 // The text of attribute `attr` of the object at `object` (relative to `loc`): char arrays are
 // joined (Imaris's "array of single characters"), fixed and variable-length strings read as such,
 // a single number formatted. nullopt when absent, empty-typed, oversized or of another kind.
 std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, const char* attr) {
   if (!LinkExists(loc, object) && object != ".") return std::nullopt;
   const htri_t exists = H5Aexists_by_name(loc, object.c_str(), attr, H5P_DEFAULT);
-  if (exists <= 0) {
-    H5Eclear2(H5E_DEFAULT);
-    return std::nullopt;
-  }
+  if (exists <= 0) return NoAttribute();
   Hdf5Id a(H5Aopen_by_name(loc, object.c_str(), attr, H5P_DEFAULT, H5P_DEFAULT));
-  if (!a.valid()) return H5Eclear2(H5E_DEFAULT), std::nullopt;
+  if (!a.valid()) return NoAttribute();
   Hdf5Id type(H5Aget_type(a.get()));
   Hdf5Id space(H5Aget_space(a.get()));
-  if (!type.valid() || !space.valid()) return H5Eclear2(H5E_DEFAULT), std::nullopt;
+  if (!type.valid() || !space.valid()) return NoAttribute();
   const hssize_t n = H5Sget_simple_extent_npoints(space.get());
-  if (n < 1 || n > kMaxAttributeElements) return H5Eclear2(H5E_DEFAULT), std::nullopt;
+  if (n < 1 || n > kMaxAttributeElements) return NoAttribute();
   const H5T_class_t cls = H5Tget_class(type.get());
   if (cls == H5T_STRING) {
     if (H5Tis_variable_str(type.get()) > 0) {
@@ -73,8 +76,7 @@ std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, c
       if (!mem.valid() || H5Tset_size(mem.get(), H5T_VARIABLE) < 0 ||
           H5Tset_cset(mem.get(), H5Tget_cset(type.get())) < 0 ||
           H5Aread(a.get(), mem.get(), &text) < 0) {
-        H5Eclear2(H5E_DEFAULT);
-        return std::nullopt;
+        return NoAttribute();
       }
       std::string out = text != nullptr ? std::string(text) : std::string();
       H5free_memory(text);
@@ -87,7 +89,7 @@ std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, c
     }
     // Read with the file's own type (no conversion): each element's bytes up to its first NUL.
     std::vector<char> bytes(size * static_cast<size_t>(n));
-    if (H5Aread(a.get(), type.get(), bytes.data()) < 0) return H5Eclear2(H5E_DEFAULT), std::nullopt;
+    if (H5Aread(a.get(), type.get(), bytes.data()) < 0) return NoAttribute();
     std::string out;
     for (hssize_t i = 0; i < n; ++i) {
       const char* e = bytes.data() + static_cast<size_t>(i) * size;
@@ -97,7 +99,7 @@ std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, c
   }
   if ((cls == H5T_INTEGER || cls == H5T_FLOAT) && n == 1) {
     double v = 0;
-    if (H5Aread(a.get(), H5T_NATIVE_DOUBLE, &v) < 0) return H5Eclear2(H5E_DEFAULT), std::nullopt;
+    if (H5Aread(a.get(), H5T_NATIVE_DOUBLE, &v) < 0) return NoAttribute();
     char buf[32];
     std::snprintf(buf, sizeof buf, "%.17g", v);
     return std::string(buf);
@@ -130,9 +132,11 @@ std::vector<double> NumberList(std::string_view text) {
 int64_t CountNumbered(hid_t file, const std::string& group, const std::string& prefix,
                       int64_t limit) {
   Hdf5Id g(H5Gopen2(file, group.c_str(), H5P_DEFAULT));
-  if (!g.valid()) return H5Eclear2(H5E_DEFAULT), 0;
   H5G_info_t info;
-  if (H5Gget_info(g.get(), &info) < 0) return H5Eclear2(H5E_DEFAULT), 0;
+  if (!g.valid() || H5Gget_info(g.get(), &info) < 0) {
+    H5Eclear2(H5E_DEFAULT);  // A missing group holds nothing.
+    return 0;
+  }
   const int64_t links = static_cast<int64_t>(std::min<hsize_t>(info.nlinks, limit + 1));
   int64_t n = 0;
   while (n < links && LinkExists(g.get(), prefix + std::to_string(n))) ++n;

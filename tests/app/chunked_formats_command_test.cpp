@@ -49,6 +49,10 @@ TEST(ChunkedFormatsCommand, InfoOmeZarrLevels) {
 
   ExpectBadInput(RunOctoscope("info --level 4 " + Quote(kZarr)), kZarr.filename().string(),
                  "resolution level 4");
+  // Single-resolution formats have level 0 only.
+  const fs::path tiff = fs::path(OCTOSCOPE_TESTDATA) / "neubias/xyzc_16bit__dna_conf_wf.tif";
+  ExpectBadInput(RunOctoscope("info --level 1 " + Quote(tiff)), tiff.filename().string(),
+                 "resolution level 1 asked for, the file has 1");
 }
 
 TEST(ChunkedFormatsCommand, InfoImarisWithStats) {
