@@ -5,8 +5,8 @@
 // - Metadata: byte 0 picks the parser (even: array, `.zarray`/`zarr.json`; odd: attributes,
 //   `.zattrs`/group `zarr.json`); the rest is the JSON text.
 // - Chunk codec: byte 0 picks the codec (modulo 7, io::ChunkCodec order), bytes 1-3 the decoded
-//   size (little-endian, at most 16 MiB), byte 4 an element size for Unshuffle; the rest is the
-//   encoded chunk.
+//   size (little-endian, modulo 1 MiB + 1 so runs stay fast), byte 4 an element size for
+//   Unshuffle; the rest is the encoded chunk.
 // - Store: segments separated by "@@@@": the image group's `.zattrs` (empty: none, the array is
 //   opened by itself), the array's metadata (`0/zarr.json` when it says "zarr_format": 3, else
 //   `0/.zarray`), then files of the array as "<relative name>\n<bytes>" (names of [0-9a-z./_]
@@ -45,7 +45,7 @@ inline Status ZarrMetadataInput(std::span<const uint8_t> data) {
 inline Status ChunkCodecInput(std::span<const uint8_t> data) {
   if (data.size() < 5) return Status::Ok();
   const auto codec = static_cast<io::ChunkCodec>(data[0] % 7);
-  const size_t out_size = (data[1] | data[2] << 8 | data[3] << 16) & 0xFFFFFF;
+  const size_t out_size = (data[1] | data[2] << 8 | data[3] << 16) % ((1 << 20) + 1);
   const size_t element = data[4] % 9 + 1;
   const auto in = std::as_bytes(data.subspan(5));
   std::vector<std::byte> out(out_size);
