@@ -198,6 +198,25 @@ struct BrickLayout {
   }
 };
 
+// Writes EVERY channel of a row of n voxels from the channels' source rows, in one pass of
+// sequential stores (kFixedStride channels, known at compile time so the inner loop unrolls).
+template <typename L>
+inline void InterleaveRow(std::byte* voxel_row, const uint16_t* const* src, int64_t n) {
+  using T = typename L::Sample;
+  constexpr int kC = L::kFixedStride;
+  T* __restrict dst = reinterpret_cast<T*>(voxel_row);
+  const uint16_t* __restrict s0 = src[0];
+  const uint16_t* __restrict s1 = src[kC > 1 ? 1 : 0];
+  const uint16_t* __restrict s2 = src[kC > 2 ? 2 : 0];
+  const uint16_t* __restrict s3 = src[kC > 3 ? 3 : 0];
+  for (int64_t x = 0; x < n; ++x) {
+    dst[x * kC] = static_cast<T>(s0[x]);
+    if constexpr (kC > 1) dst[x * kC + 1] = static_cast<T>(s1[x]);
+    if constexpr (kC > 2) dst[x * kC + 2] = static_cast<T>(s2[x]);
+    if constexpr (kC > 3) dst[x * kC + 3] = static_cast<T>(s3[x]);
+  }
+}
+
 // Writes the lanes' channels of `region` (inside the brick's stored box) from their values, laid
 // out over `src_box` (which contains region). With `fill` (a new brick), every channel of a row is
 // first set to fill[ch], so that channels without a lane show their uniform value. With `stats`
@@ -213,21 +232,27 @@ void WriteBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& re
   const int64_t n = region.Extent(0);
   const int channels = static_cast<int>(layout.channels);
   const int64_t stats_planes = stats_box.Extent(2);
+  // Every channel has a lane (lanes are sorted by channel): one interleaving pass per row.
+  const bool all_lanes = L::kFixedStride > 0 && static_cast<int>(lanes.size()) == channels;
+  const uint16_t* rows[4] = {};
   for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
     for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
       std::byte* voxel_row = brick + layout.ByteOffset(region.lo[0], y, z, 0);
-      if (fill != nullptr) {
+      const size_t src = BufferIndex(src_box, region.lo[0], y, z);
+      if (all_lanes) {
+        for (int c = 0; c < channels; ++c) rows[c] = lanes[c].values + src;
+        InterleaveRow<L>(voxel_row, rows, n);
+      } else if (fill != nullptr) {
         for (int ch = 0; ch < channels; ++ch) {
           FillRow<L>(voxel_row + ch * sizeof(T), layout.channels, fill[ch], n);
         }
       }
-      const size_t src = BufferIndex(src_box, region.lo[0], y, z);
       const bool scan = stats != nullptr && stats_box.lo[1] <= y && y < stats_box.hi[1] &&
                         stats_box.lo[2] <= z && z < stats_box.hi[2];
       for (size_t li = 0; li < lanes.size(); ++li) {
         const int c = lanes[li].channel;
         const uint16_t* row = lanes[li].values + src;
-        StoreRow<L>(voxel_row + c * sizeof(T), layout.channels, c, row, n);
+        if (!all_lanes) StoreRow<L>(voxel_row + c * sizeof(T), layout.channels, c, row, n);
         if (scan) {
           auto& st = stats[static_cast<int64_t>(li) * stats_planes + (z - stats_box.lo[2])];
           ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), st.lo, st.hi,
@@ -387,7 +412,6 @@ Result<std::unique_ptr<Octree>> Octree::CreateImpl(const BrickGeometry& geometry
                                 " child groups (node ids are 32-bit); use larger bricks");
   }
   std::unique_ptr<Octree> tree(new Octree(geometry, cache, static_cast<uint32_t>(per_page)));
-  tree->workers_ = options.workers;
   tree->tolerance_.resize(channels);
   tree->background_.resize(channels);
   for (int c = 0; c < channels; ++c) {
@@ -1062,7 +1086,7 @@ Status Octree::Insert(int channel, const Box& box, std::span<const std::byte> da
   return Insert(box, std::span<const ChannelBlock>(&block, 1));
 }
 
-Status Octree::Insert(const Box& box, std::span<const ChannelBlock> blocks) {
+Status Octree::Insert(const Box& box, std::span<const ChannelBlock> blocks, WorkerPool* workers) {
   if (box.empty() || !geometry_.ValidExtent(0).ContainsBox(box)) {
     return OutOfRangeError("octree: block " + box.ToString() + " is empty or outside the volume " +
                            geometry_.ValidExtent(0).ToString());
@@ -1088,6 +1112,7 @@ Status Octree::Insert(const Box& box, std::span<const ChannelBlock> blocks) {
   }
   if (blocks.empty()) return Status::Ok();
   std::lock_guard<std::mutex> insert_lock(insert_mu_);
+  workers_ = workers;
   // The blocks as uint16 samples, ascending by channel. 16-bit data is used in place when it is
   // aligned.
   const size_t n_lanes = blocks.size();

@@ -106,9 +106,6 @@ struct OctreeOptions {
   std::vector<uint32_t> homogeneity_tolerance;
   // Per-channel background value (what not-yet-inserted voxels show); empty = 0.
   std::vector<uint16_t> background;
-  // Threads that write the bricks of one insert in parallel (not owned; must outlive the
-  // octree); null = the inserting thread alone.
-  WorkerPool* workers = nullptr;
 };
 
 // One channel's samples of a block for Insert: the block's voxels in the stored type
@@ -181,8 +178,10 @@ class Octree {
   Status Insert(int channel, const Box& box, std::span<const std::byte> data);
   // Inserts several channels' blocks over the same box at once (each channel at most once, in
   // any order): the same result as inserting them one by one, but every brick is written in one
-  // pass for all of them. Errors as above.
-  Status Insert(const Box& box, std::span<const ChannelBlock> blocks);
+  // pass for all of them. With `workers`, the bricks of each level are written on the pool's
+  // threads. Errors as above.
+  Status Insert(const Box& box, std::span<const ChannelBlock> blocks,
+                WorkerPool* workers = nullptr);
 
   // The node with this key / id, or nullopt when it does not exist (not created, pruned, id free).
   std::optional<NodeSnapshot> GetNode(const NodeKey& key) const;
@@ -352,7 +351,7 @@ class Octree {
   std::set<uint32_t> free_groups_;
   std::unordered_map<uint32_t, LeafProgress> progress_;    // Guarded by insert_mu_.
   std::unordered_map<uint32_t, PlaneTable> plane_tables_;  // Guarded by insert_mu_.
-  WorkerPool* workers_ = nullptr;
+  WorkerPool* workers_ = nullptr;  // The current insert's pool (guarded by insert_mu_).
 
   mutable std::array<std::mutex, kBrickStripes> brick_locks_;
   ChangeLog changes_;

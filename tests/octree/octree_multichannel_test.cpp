@@ -36,12 +36,12 @@ class MultiChannelTest : public ::testing::TestWithParam<Case> {};
 
 // Inserts all channels of `box` in one call.
 Status InsertAll(Octree& tree, const SourceVolume& src, const Box& box,
-                 const std::vector<int>& channels) {
+                 const std::vector<int>& channels, WorkerPool* workers = nullptr) {
   std::vector<std::vector<std::byte>> data;
   std::vector<ChannelBlock> blocks;
   for (int c : channels) data.push_back(src.Block(c, box, tree.geometry().bytes_per_sample()));
   for (size_t i = 0; i < channels.size(); ++i) blocks.push_back({channels[i], data[i]});
-  return tree.Insert(box, blocks);
+  return tree.Insert(box, blocks, workers);
 }
 
 TEST_P(MultiChannelTest, EveryWayOfInsertingGivesTheSameTree) {
@@ -63,19 +63,19 @@ TEST_P(MultiChannelTest, EveryWayOfInsertingGivesTheSameTree) {
   for (int c = 0; c < p.channels; ++c) every[c] = c;
   WorkerPool pool(3);
   for (bool parallel : {false, true}) {
-    OctreeOptions o = options;
-    if (parallel) o.workers = &pool;
+    const OctreeOptions& o = options;
+    WorkerPool* w = parallel ? &pool : nullptr;
     const std::string mode = parallel ? " (parallel)" : "";
     {  // One multi-channel insert.
       TreeFixture f = TreeFixture::Make(params, o);
-      ASSERT_TRUE(InsertAll(*f.tree, src, all, every).ok());
+      ASSERT_TRUE(InsertAll(*f.tree, src, all, every, w).ok());
       ExpectSameTree(expected, DumpTree(*f.tree), "one multi-channel insert" + mode);
     }
     {  // Single planes, all channels at once, in random order.
       TreeFixture f = TreeFixture::Make(params, o);
       std::vector<Box> planes = testing::ZSlabs(p.size);
       std::shuffle(planes.begin(), planes.end(), std::mt19937(3));
-      for (const Box& b : planes) ASSERT_TRUE(InsertAll(*f.tree, src, b, every).ok());
+      for (const Box& b : planes) ASSERT_TRUE(InsertAll(*f.tree, src, b, every, w).ok());
       ExpectSameTree(expected, DumpTree(*f.tree), "shuffled multi-channel planes" + mode);
     }
     {  // Random blocks of random channel subsets until every voxel of every channel is written
@@ -98,10 +98,10 @@ TEST_P(MultiChannelTest, EveryWayOfInsertingGivesTheSameTree) {
         std::vector<int> first, second;
         for (int c = 0; c < p.channels; ++c) (rng() % 2 ? first : second).push_back(c);
         if (!first.empty()) {
-          ASSERT_TRUE(InsertAll(*f.tree, src, b, first).ok());
+          ASSERT_TRUE(InsertAll(*f.tree, src, b, first, w).ok());
         }
         if (!second.empty()) {
-          ASSERT_TRUE(InsertAll(*f.tree, src, b, second).ok());
+          ASSERT_TRUE(InsertAll(*f.tree, src, b, second, w).ok());
         }
       }
       ExpectSameTree(expected, DumpTree(*f.tree), "random cells and channel subsets" + mode);

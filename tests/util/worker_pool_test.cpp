@@ -18,10 +18,12 @@ TEST(WorkerPoolTest, RunsEveryIterationOnceOnSeveralThreads) {
     EXPECT_EQ(pool.threads(), threads);
     for (size_t n : {size_t{0}, size_t{1}, size_t{7}, size_t{1000}}) {
       std::vector<std::atomic<int>> runs(n);
-      ASSERT_TRUE(pool.ParallelFor(n, [&](size_t i) {
-                        runs[i]++;
-                        return Status::Ok();
-                      }).ok());
+      ASSERT_TRUE(pool.ParallelFor(n,
+                                   [&](size_t i) {
+                                     runs[i]++;
+                                     return Status::Ok();
+                                   })
+                      .ok());
       for (size_t i = 0; i < n; ++i) EXPECT_EQ(runs[i].load(), 1) << i;
     }
   }
@@ -40,10 +42,12 @@ TEST(WorkerPoolTest, ReturnsTheFirstErrorByIndexAndSkipsTheRest) {
   EXPECT_LT(ran.load(), 10000);
   // The pool stays usable after an error.
   std::atomic<int> again{0};
-  EXPECT_TRUE(pool.ParallelFor(50, [&](size_t) {
-                    ++again;
-                    return Status::Ok();
-                  }).ok());
+  EXPECT_TRUE(pool.ParallelFor(50,
+                               [&](size_t) {
+                                 ++again;
+                                 return Status::Ok();
+                               })
+                  .ok());
   EXPECT_EQ(again.load(), 50);
 }
 
