@@ -17,7 +17,6 @@
 #include "octree/octree_builder.h"
 #include "octree/octree_cache.h"
 #include "protocol/build_report.h"
-#include "util/progress.h"
 #include "util/strings.h"
 
 namespace octoscope::app {
@@ -78,9 +77,11 @@ int RunBuild(std::span<const std::string> args) {
   flags.AddValue("brick", "N|X,Y,Z", "brick size in voxels, even", "64");
   flags.AddValue(
       "threshold", "F",
-      "homogeneity threshold, a fraction of each channel's value range (0: only exactly\n"
-      "                            constant bricks are pruned)",
-      "0.05");
+      "LOSSY pruning: also replace bricks whose values vary by at most F times the channel's\n"
+      "                            data range by their average (the report states the error)",
+      "0: lossless, only exactly constant bricks");
+  flags.AddValue("slab-planes", "N", "planes per read (1: as a live acquisition delivers them)",
+                 "from the budget");
   flags.AddValue("ram-mb", "N", "RAM budget in MiB for pages and slabs",
                  "a quarter of RAM, <= 4096");
   flags.AddValue("threads", "N", "reader threads", "one per channel, at least 2");
@@ -98,13 +99,15 @@ int RunBuild(std::span<const std::string> args) {
     if (!parsed.ok()) return Usage(parsed.status().message(), flags);
     brick = *parsed;
   }
-  auto threshold = flags.GetDouble("threshold", 0.05);
+  auto threshold = flags.GetDouble("threshold", 0.0);
   if (!threshold.ok()) return Usage(threshold.status().message(), flags);
   if (!(*threshold >= 0 && *threshold <= 1)) return Usage("--threshold must be in [0, 1]", flags);
   auto ram_mb = flags.GetInt("ram-mb", DefaultRamMb(), 16, int64_t{1} << 22);
   if (!ram_mb.ok()) return Usage(ram_mb.status().message(), flags);
   auto threads = flags.GetInt("threads", 0, 0, 256);
   if (!threads.ok()) return Usage(threads.status().message(), flags);
+  auto slab_planes = flags.GetInt("slab-planes", 0, 0, octree::kMaxBrickAxis);
+  if (!slab_planes.ok()) return Usage(slab_planes.status().message(), flags);
   auto options = VolumeOptionsFromFlags(flags);
   if (!options.ok()) return Usage(options.status().message(), flags);
 
@@ -115,34 +118,29 @@ int RunBuild(std::span<const std::string> args) {
   auto identity = octree::ComputeSourceIdentity(input);
   if (!identity.ok()) return Fail(input, identity.status());
 
-  // The budget: 1/8 for slabs being read (file type) and 1/8 for their converted copies, the
-  // rest for brick pages (docs/cli.md).
   const uint64_t ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
-  const uint64_t slab_budget = ram_bytes / 8;
-  const uint64_t page_budget = ram_bytes - 2 * slab_budget;
+  const octree::BuildBudget budget = BuildBudgetFor(info, brick, ram_bytes);
 
   octree::CacheParams params;
   params.info = info;
   params.brick_size = brick;
   params.threshold = *threshold;
-  auto cache = octree::OctreeCache::Open(*cache_dir, *identity, params, page_budget,
+  auto cache = octree::OctreeCache::Open(*cache_dir, *identity, params, budget.page_bytes,
                                          [&] { return DeriveMapping(**source, *threshold); });
   if (!cache.ok()) return Fail(input, cache.status());
 
   if (!(*cache)->reused()) {
     const int64_t kill_after = TestKillAfterPlanes();
-    ProgressBar bar(stderr, "planes", static_cast<uint64_t>(info.size[2]) * info.channel_count(),
-                    static_cast<double>((*source)->SlabBytes(1)));
-    octree::BuildOptions build_options;
-    build_options.threads = static_cast<int>(*threads);
-    build_options.slab_budget_bytes = slab_budget;
-    build_options.progress = [&](const octree::BuildProgress& p) {
-      bar.Update(p.planes_done);
+    BuildRun run;
+    run.budget = budget;
+    run.scratch_dir = *cache_dir;
+    run.threads = static_cast<int>(*threads);
+    run.slab_planes = *slab_planes;
+    run.on_progress = [&](const octree::BuildProgress& p) {
       if (kill_after >= 0 && p.planes_done >= static_cast<uint64_t>(kill_after)) raise(SIGKILL);
     };
-    Status built = octree::BuildOctree(**source, (*cache)->mapping().value_maps, (*cache)->octree(),
-                                       build_options);
-    bar.Finish();
+    Status built =
+        BuildWithProgress(**source, (*cache)->mapping().value_maps, (*cache)->octree(), run);
     if (!built.ok()) return Fail(input, built);
     if (kill_after == static_cast<int64_t>(info.size[2]) * info.channel_count() + 1) raise(SIGKILL);
     if (Status s = (*cache)->Commit(); !s.ok()) return Fail(*cache_dir, s);
@@ -159,6 +157,17 @@ int RunBuild(std::span<const std::string> args) {
   report.rebuild_reason = (*cache)->rebuild_reason();
   report.levels = (*cache)->octree().geometry().level_count();
   report.cache_dir = *cache_dir;
+  report.threshold = *threshold;
+  const std::vector<uint32_t> error = (*cache)->octree().PruningError();
+  for (size_t c = 0; c < error.size(); ++c) {
+    // file = offset + scale * stored: an error of e stored units is scale * e in the file's.
+    report.pruning_error.push_back(error[c] * (*cache)->mapping().value_maps[c].scale);
+  }
+  const paging::PageCacheStats pages = (*cache)->page_cache().stats();
+  report.pages_read_mb = static_cast<double>(pages.bytes_read) / 1e6;
+  report.pages_written_mb = static_cast<double>(pages.bytes_written) / 1e6;
+  const octree::Vec3 used = (*cache)->octree().geometry().brick_size();
+  report.brick_size.assign(used.begin(), used.end());
   std::printf("%s\n", protocol::BuildReportJson(report).c_str());
   return kExitOk;
 }

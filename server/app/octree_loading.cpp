@@ -30,31 +30,37 @@ void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info
   }
 }
 
-// The budget split of docs/cli.md: slabs in flight get 1/8, their converted copies 1/8.
-uint64_t SlabBudget(uint64_t ram_bytes) { return ram_bytes / 8; }
-uint64_t PageBudget(uint64_t ram_bytes) { return ram_bytes - 2 * SlabBudget(ram_bytes); }
+}  // namespace
 
-// Streams the whole source into `tree` with a progress bar on stderr.
+octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
+                                   uint64_t ram_bytes) {
+  const volume::DataType stored = volume::StoredTypeFor(info.dtype);
+  return octree::SplitBuildBudget(info, brick_size[1], brick_size[2],
+                                  static_cast<int>(volume::BytesPerSample(stored)), ram_bytes);
+}
+
 Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
-                         octree::Octree& tree, const OctreeLoadOptions& options) {
+                         octree::Octree& tree, const BuildRun& run) {
   const volume::VolumeInfo& info = source.info();
   std::optional<ProgressBar> bar;
-  if (options.progress) {
+  if (run.progress_bar) {
     bar.emplace(stderr, "planes", static_cast<uint64_t>(info.size[2]) * info.channel_count(),
                 static_cast<double>(source.SlabBytes(1)));
   }
   octree::BuildOptions build;
-  build.threads = options.threads;
-  build.slab_budget_bytes = SlabBudget(options.ram_bytes);
-  build.progress = [&bar](const octree::BuildProgress& p) {
+  build.threads = run.threads;
+  build.slab_budget_bytes = run.budget.slab_bytes;
+  build.staging_bytes = run.budget.staging_bytes;
+  build.scratch_dir = run.scratch_dir;
+  build.slab_planes = run.slab_planes;
+  build.progress = [&](const octree::BuildProgress& p) {
     if (bar) bar->Update(p.planes_done);
+    if (run.on_progress) run.on_progress(p);
   };
   Status built = octree::BuildOctree(source, maps, tree, build);
   if (bar) bar->Finish();
   return built;
 }
-
-}  // namespace
 
 int64_t DefaultRamMb() {
   const int64_t pages = sysconf(_SC_PHYS_PAGES), page_size = sysconf(_SC_PAGE_SIZE);
@@ -128,8 +134,7 @@ Result<std::unique_ptr<LoadedOctree>> OpenCacheDirectory(const fs::path& dir, ui
   // Opening with the manifest's own source and parameters reuses the cache; should it still be
   // unusable (damaged files), `derive` refuses before anything is cleared.
   auto cache = octree::OctreeCache::Open(
-      dir, manifest->source, manifest->params, PageBudget(ram_bytes),
-      [&dir]() -> Result<octree::ValueMapping> {
+      dir, manifest->source, manifest->params, ram_bytes, [&dir]() -> Result<octree::ValueMapping> {
         return CorruptError(dir.string() +
                             ": the cache is incomplete or damaged; rebuild it from the scan "
                             "(octoscope build SCAN --cache DIR)");
@@ -182,17 +187,23 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
     params.info = info;
     params.brick_size = options.brick_size;
     params.threshold = options.threshold;
-    OCTO_ASSIGN_OR_RETURN(loaded->cache,
-                          octree::OctreeCache::Open(
-                              options.cache_dir, identity, params, PageBudget(options.ram_bytes),
-                              [&] { return DeriveMapping(*source, options.threshold); }));
+    const octree::BuildBudget budget = BuildBudgetFor(info, options.brick_size, options.ram_bytes);
+    OCTO_ASSIGN_OR_RETURN(
+        loaded->cache,
+        octree::OctreeCache::Open(options.cache_dir, identity, params, budget.page_bytes,
+                                  [&] { return DeriveMapping(*source, options.threshold); }));
     loaded->value_maps = loaded->cache->mapping().value_maps;
     loaded->cache_dir = options.cache_dir;
     loaded->reused = loaded->cache->reused();
     loaded->source = loaded->reused ? "cache" : "built-cache";
     if (!loaded->reused) {
+      BuildRun run;
+      run.budget = budget;
+      run.scratch_dir = options.cache_dir;
+      run.threads = options.threads;
+      run.progress_bar = options.progress;
       OCTO_RETURN_IF_ERROR(
-          BuildWithProgress(*source, loaded->value_maps, loaded->cache->octree(), options));
+          BuildWithProgress(*source, loaded->value_maps, loaded->cache->octree(), run));
       OCTO_RETURN_IF_ERROR(loaded->cache->Commit());
     }
     return loaded;
@@ -200,7 +211,8 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
 
   // Route 3: in RAM, when the bricks fit the page budget.
   OCTO_ASSIGN_OR_RETURN(uint64_t pool_bytes, MaxPoolBytes(info, options.brick_size));
-  const uint64_t page_budget = PageBudget(options.ram_bytes);
+  const octree::BuildBudget budget = BuildBudgetFor(info, options.brick_size, options.ram_bytes);
+  const uint64_t page_budget = budget.page_bytes;
   if (pool_bytes > page_budget) {
     return ResourceExhaustedError(
         "the octree needs up to " + std::to_string(pool_bytes >> 20) +
@@ -229,8 +241,13 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
                         octree::Octree::Create(geometry, tree_options, loaded->memory_pages.get()));
   loaded->value_maps = mapping.value_maps;
   loaded->source = "memory";
-  OCTO_RETURN_IF_ERROR(
-      BuildWithProgress(*source, loaded->value_maps, *loaded->memory_tree, options));
+  BuildRun run;
+  run.budget = budget;
+  run.threads = options.threads;
+  run.progress_bar = options.progress;
+  std::error_code ec;
+  run.scratch_dir = fs::temp_directory_path(ec);
+  OCTO_RETURN_IF_ERROR(BuildWithProgress(*source, loaded->value_maps, *loaded->memory_tree, run));
   return loaded;
 }
 

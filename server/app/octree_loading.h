@@ -8,8 +8,8 @@
 //  3. INPUT is a scan and no cache directory: the octree is built in RAM
 //     (paging::MemoryPageStore) when its bricks fit the RAM budget, else an error asks for a
 //     cache directory.
-// The RAM budget splits as `octoscope build` documents (docs/cli.md): 1/8 for source slabs,
-// 1/8 for their converted copies, the rest for brick pages.
+// A build's RAM budget splits as octree::SplitBuildBudget says (docs/cli.md); opening a complete
+// cache gives all of it to brick pages.
 //
 // Thread safety: not thread-safe; used by one command thread. A LoadedOctree owns everything
 // behind its octree (destroy it after every user of the octree).
@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -25,6 +26,7 @@
 #include "io/open_options.h"
 #include "io/volume_source.h"
 #include "octree/octree.h"
+#include "octree/octree_builder.h"
 #include "octree/octree_cache.h"
 #include "paging/memory_page_store.h"
 #include "paging/page_cache.h"
@@ -47,6 +49,24 @@ int ReportBadInput(const char* command, const std::string& input, const Status& 
 // a fraction of the data's range, or the type is wider) one statistics pass over the data.
 Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold);
 
+// The build budget split (octree::SplitBuildBudget) for `info` in bricks of `brick_size`.
+octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
+                                   uint64_t ram_bytes);
+
+// One build of a source into an octree, as the commands run it.
+struct BuildRun {
+  octree::BuildBudget budget;
+  std::filesystem::path scratch_dir;  // For layers that do not fit the staging budget.
+  int threads = 0;                    // Reader threads; 0 = one per channel, at least 2.
+  int64_t slab_planes = 0;            // Planes per read; 0 = from the budget.
+  bool progress_bar = true;           // A progress bar on stderr.
+  std::function<void(const octree::BuildProgress&)> on_progress;  // Also called, if set.
+};
+
+// Streams the whole source into `tree` (octree::BuildOctree).
+Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
+                         octree::Octree& tree, const BuildRun& run);
+
 // True when `path` is a directory holding a cache MANIFEST.
 bool IsCacheDirectory(const std::filesystem::path& path);
 
@@ -55,9 +75,9 @@ struct OctreeLoadOptions {
   std::filesystem::path cache_dir;  // Empty: build in RAM.
   uint64_t ram_bytes = uint64_t{1} << 30;
   octree::Vec3 brick_size = octree::kDefaultBrickSize;
-  double threshold = 0.05;  // Homogeneity threshold (fraction of the value range).
-  int threads = 0;          // Reader threads; 0 = one per channel, at least 2.
-  bool progress = true;     // Progress bars on stderr while building.
+  double threshold = 0.0;  // Homogeneity threshold (fraction of the value range); 0 = lossless.
+  int threads = 0;         // Reader threads; 0 = one per channel, at least 2.
+  bool progress = true;    // Progress bars on stderr while building.
 };
 
 // An octree ready for use, with what backs it.

@@ -16,10 +16,10 @@ constexpr uint64_t CompleteTreeChildGroups(int root_level) {
 
 // The design point (docs/octree_format.md, "Device node buffer"): a full 65536^3 volume with
 // 64^3 bricks has root level 10 (64 * 2^10 = 65536) and needs
-// (65536/64)^3 * 8/7 / 8 ~= 153,391,690 child groups, well below 2^30 = 1,073,741,824.
+// (65536/64)^3 * 8/7 / 8 ~= 153,391,690 child groups, below 2^29 = 536,870,912.
 static_assert(CompleteTreeChildGroups(10) == 153'391'690);
 static_assert(CompleteTreeChildGroups(10) <= kChildGroupCapacity);
-// One level deeper (32^3 bricks for 65536^3) would not fit: 1,227,133,514 > 2^30.
+// One level deeper (32^3 bricks for 65536^3) would not fit: 1,227,133,514 > 2^29.
 static_assert(CompleteTreeChildGroups(11) > kChildGroupCapacity);
 static_assert(NodeWords(1) == 3 && NodeWords(2) == 3 && NodeWords(3) == 4 && NodeWords(4) == 4);
 

@@ -35,9 +35,11 @@ namespace octoscope::octree {
 inline constexpr uint32_t kNodeInBufferBit = uint32_t{1} << 31;
 inline constexpr uint32_t kNodeHasBrickBit = uint32_t{1} << 30;
 inline constexpr uint32_t kNodeChildGroupMask = (uint32_t{1} << 30) - 1;
-// The largest encodable child-group index: group indices 0..2^30-1, i.e. 2^30 groups.
+// The largest child-group index the 30-bit field can encode.
 inline constexpr uint32_t kMaxChildGroup = kNodeChildGroupMask;
-inline constexpr uint64_t kChildGroupCapacity = uint64_t{1} << 30;
+// How many child groups a tree may use: node ids (8 * group + octant) are 32-bit on the host and
+// in the kernels, so groups are limited to 2^29 (ids < 2^32), below the field's 2^30.
+inline constexpr uint64_t kChildGroupCapacity = uint64_t{1} << 29;
 
 // Words per node for `channels` channels: 2 + ceil(channels / 2). REQUIRES: channels >= 1.
 constexpr int NodeWords(int channels) { return 2 + (channels + 1) / 2; }
@@ -57,8 +59,9 @@ constexpr uint64_t NodeWordOffset(uint64_t node_id, int channels) {
 // children). Exact for a complete tree; pruning only lowers it. Because groups are reused
 // lowest-first, every live group index is < this count.
 uint64_t MaxChildGroups(const BrickGeometry& geometry);
-// True when every possible tree of `geometry` is addressable: MaxChildGroups <= 2^30.
-// (False e.g. for 65536^3 with 32^3 bricks; true for 65536^3 with 64^3 bricks.)
+// True when every possible tree of `geometry` is addressable: MaxChildGroups <=
+// kChildGroupCapacity (2^29). (False e.g. for 65536^3 with 32^3 bricks; true for 65536^3 with
+// 64^3 bricks.)
 bool FitsDeviceEncoding(const BrickGeometry& geometry);
 
 // A node's device entry, decoded.

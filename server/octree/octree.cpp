@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <string>
 #include <type_traits>
@@ -197,23 +198,65 @@ struct BrickLayout {
   }
 };
 
-// Writes channel c of `region` (inside the brick's stored box) from `src`, laid out over
-// `src_box` (which contains region). With `stats` (a SampleStats), also accumulates the written
-// values inside `stats_box` (a part of region) into it, row by row while they are in L1.
-template <typename L, typename Stats = std::nullptr_t>
-void WriteBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region, int c,
-                      const uint16_t* src, const Box& src_box, const Box& stats_box = Box{},
-                      Stats* stats = nullptr) {
+// Writes EVERY channel of a row of n voxels from the channels' source rows, in one pass of
+// sequential stores (kFixedStride channels, known at compile time so the inner loop unrolls).
+template <typename L>
+inline void InterleaveRow(std::byte* voxel_row, const uint16_t* const* src, int64_t n) {
+  using T = typename L::Sample;
+  constexpr int kC = L::kFixedStride;
+  T* __restrict dst = reinterpret_cast<T*>(voxel_row);
+  const uint16_t* __restrict s0 = src[0];
+  const uint16_t* __restrict s1 = src[kC > 1 ? 1 : 0];
+  const uint16_t* __restrict s2 = src[kC > 2 ? 2 : 0];
+  const uint16_t* __restrict s3 = src[kC > 3 ? 3 : 0];
+  for (int64_t x = 0; x < n; ++x) {
+    dst[x * kC] = static_cast<T>(s0[x]);
+    if constexpr (kC > 1) dst[x * kC + 1] = static_cast<T>(s1[x]);
+    if constexpr (kC > 2) dst[x * kC + 2] = static_cast<T>(s2[x]);
+    if constexpr (kC > 3) dst[x * kC + 3] = static_cast<T>(s3[x]);
+  }
+}
+
+// Writes the lanes' channels of `region` (inside the brick's stored box) from their values, laid
+// out over `src_box` (which contains region). With `fill` (a new brick), every channel of a row is
+// first set to fill[ch], so that channels without a lane show their uniform value. With `stats`
+// (non-null), accumulates the written values inside `stats_box` (a part of region) per lane and
+// z plane into stats[lane * stats_box.Extent(2) + z - stats_box.lo[2]], row by row while the
+// rows are in L1. Each row is a few hundred bytes: the per-lane passes over it stay in cache, so
+// the brick's memory is traversed once whatever the number of lanes.
+template <typename L, typename LaneSpan, typename Stats>
+void WriteBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region,
+                      const LaneSpan& lanes, const Box& src_box, const uint16_t* fill,
+                      const Box& stats_box, Stats* stats) {
+  using T = typename L::Sample;
   const int64_t n = region.Extent(0);
+  const int channels = static_cast<int>(layout.channels);
+  const int64_t stats_planes = stats_box.Extent(2);
+  // Every channel has a lane (lanes are sorted by channel): one interleaving pass per row.
+  const bool all_lanes = L::kFixedStride > 0 && static_cast<int>(lanes.size()) == channels;
+  const uint16_t* rows[4] = {};
   for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
     for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
-      const uint16_t* row = src + BufferIndex(src_box, region.lo[0], y, z);
-      StoreRow<L>(brick + layout.ByteOffset(region.lo[0], y, z, c), layout.channels, c, row, n);
-      if constexpr (!std::is_same_v<Stats, std::nullptr_t>) {
-        if (stats != nullptr && stats_box.lo[1] <= y && y < stats_box.hi[1] &&
-            stats_box.lo[2] <= z && z < stats_box.hi[2]) {
-          ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), stats->lo,
-                     stats->hi, stats->sum);
+      std::byte* voxel_row = brick + layout.ByteOffset(region.lo[0], y, z, 0);
+      const size_t src = BufferIndex(src_box, region.lo[0], y, z);
+      if (all_lanes) {
+        for (int c = 0; c < channels; ++c) rows[c] = lanes[c].values + src;
+        InterleaveRow<L>(voxel_row, rows, n);
+      } else if (fill != nullptr) {
+        for (int ch = 0; ch < channels; ++ch) {
+          FillRow<L>(voxel_row + ch * sizeof(T), layout.channels, fill[ch], n);
+        }
+      }
+      const bool scan = stats != nullptr && stats_box.lo[1] <= y && y < stats_box.hi[1] &&
+                        stats_box.lo[2] <= z && z < stats_box.hi[2];
+      for (size_t li = 0; li < lanes.size(); ++li) {
+        const int c = lanes[li].channel;
+        const uint16_t* row = lanes[li].values + src;
+        if (!all_lanes) StoreRow<L>(voxel_row + c * sizeof(T), layout.channels, c, row, n);
+        if (scan) {
+          auto& st = stats[static_cast<int64_t>(li) * stats_planes + (z - stats_box.lo[2])];
+          ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), st.lo, st.hi,
+                     st.sum);
         }
       }
     }
@@ -227,53 +270,6 @@ void FillBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& reg
   for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
     for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
       FillRow<L>(brick + layout.ByteOffset(region.lo[0], y, z, c), layout.channels, value, n);
-    }
-  }
-}
-
-// Initialises EVERY channel of `region` of a new brick in one pass of whole-voxel stores:
-// channel c from `src` (laid out over src_box), the others from uniform[ch]. Accumulates the
-// values of channel c inside `stats_box` (a part of region) into `stats`.
-template <typename L, typename Stats>
-void InitBrickRegion(std::byte* brick, const BrickLayout& layout, const Box& region, int c,
-                     const uint16_t* src, const Box& src_box, const uint16_t* uniform,
-                     const Box& stats_box, Stats* stats) {
-  using T = typename L::Sample;
-  constexpr bool kWholeWords = !std::is_void_v<VoxelWord<L>>;
-  using W = std::conditional_t<kWholeWords, VoxelWord<L>, uint64_t>;
-  const int64_t n = region.Extent(0);
-  const int channels = static_cast<int>(layout.channels);
-  W base = 0;
-  if constexpr (kWholeWords) {
-    for (int ch = 0; ch < channels; ++ch) {
-      if (ch != c)
-        base |= static_cast<W>(static_cast<W>(static_cast<T>(uniform[ch])) << (8 * sizeof(T) * ch));
-    }
-  }
-  for (int64_t z = region.lo[2]; z < region.hi[2]; ++z) {
-    for (int64_t y = region.lo[1]; y < region.hi[1]; ++y) {
-      const uint16_t* __restrict row = src + BufferIndex(src_box, region.lo[0], y, z);
-      std::byte* voxel_row = brick + layout.ByteOffset(region.lo[0], y, z, 0);
-      if constexpr (kWholeWords) {
-        // Pure stores (nothing to keep), so they need not wait for the old bytes.
-        W* __restrict dst = reinterpret_cast<W*>(voxel_row);
-        const unsigned shift = 8 * sizeof(T) * static_cast<unsigned>(c);
-        for (int64_t x = 0; x < n; ++x) {
-          dst[x] = static_cast<W>(base | (static_cast<W>(static_cast<T>(row[x])) << shift));
-        }
-      } else {
-        T* __restrict dst = reinterpret_cast<T*>(voxel_row);
-        for (int64_t x = 0; x < n; ++x) {
-          for (int ch = 0; ch < channels; ++ch) {
-            dst[x * channels + ch] = static_cast<T>(ch == c ? row[x] : uniform[ch]);
-          }
-        }
-      }
-      if (stats_box.lo[1] <= y && y < stats_box.hi[1] && stats_box.lo[2] <= z &&
-          z < stats_box.hi[2]) {
-        ScanValues(row + (stats_box.lo[0] - region.lo[0]), stats_box.Extent(0), stats->lo,
-                   stats->hi, stats->sum);
-      }
     }
   }
 }
@@ -410,6 +406,11 @@ Result<std::unique_ptr<Octree>> Octree::CreateImpl(const BrickGeometry& geometry
   OCTO_RETURN_IF_ERROR(check_size(options.background.size(), "background"));
   const uint32_t type_max = geometry.bytes_per_sample() == 1 ? 255u : 65535u;
 
+  if (!FitsDeviceEncoding(geometry)) {
+    return InvalidArgumentError("octree: " + geometry.ToString() + " could need more than " +
+                                std::to_string(kChildGroupCapacity) +
+                                " child groups (node ids are 32-bit); use larger bricks");
+  }
   std::unique_ptr<Octree> tree(new Octree(geometry, cache, static_cast<uint32_t>(per_page)));
   tree->tolerance_.resize(channels);
   tree->background_.resize(channels);
@@ -554,8 +555,9 @@ Status Octree::CreateChildren(uint32_t id) {
     group = *free_groups_.begin();
     free_groups_.erase(free_groups_.begin());
   } else {
-    if (group_parent_.size() > kMaxChildGroup) {
-      return ResourceExhaustedError("octree: more than 2^30 child groups");
+    if (group_parent_.size() >= kChildGroupCapacity) {
+      return ResourceExhaustedError("octree: more than " + std::to_string(kChildGroupCapacity) +
+                                    " child groups");
     }
     group = static_cast<uint32_t>(group_parent_.size());
     group_parent_.push_back(kFreeGroup);
@@ -602,19 +604,14 @@ Result<uint32_t> Octree::EnsureNode(const NodeKey& key) {
   }
 }
 
-Status Octree::AllocateBrick(uint32_t id, const NodeKey& key, int c, const uint16_t* src,
-                             const Box& src_box, Touched* touched) {
-  OCTO_ASSIGN_OR_RETURN(uint32_t brick, pool_.Allocate());
-  auto handle = pool_.Pin(brick);
-  if (!handle.ok()) {
-    pool_.Free(brick);
-    return handle.status();
-  }
+Status Octree::InitBrick(uint32_t brick, uint32_t id, const NodeKey& key, Lanes lanes,
+                         const Box& src_box, Touched* touched) const {
+  OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
   // The new brick shows exactly what the node showed without it: its interior is the node's
-  // uniform value, its apron the neighbours' current representation, except that channel c of
-  // `written` takes the inserted values. Where the interior is written (for slab inserts most of
-  // the brick) all channels are initialised in one pass of whole-voxel stores; the rest region by
-  // region. One pin covers it all, and the brick is published only when it is complete.
+  // uniform value, its apron the neighbours' current representation, except that the lanes'
+  // channels of `written` take the inserted values. The core (written interior; for slab inserts
+  // most of the brick) is initialised row by row for all channels at once; the rest region by
+  // region. The brick is published by the caller only when it is complete.
   const Box stored = geometry_.StoredBox(key);
   const Box interior = geometry_.NodeBox(key);
   const Box written = stored.Intersect(src_box);
@@ -622,13 +619,18 @@ Status Octree::AllocateBrick(uint32_t id, const NodeKey& key, int c, const uint1
   const BrickLayout layout(geometry_, key);
   std::vector<uint16_t> uniform(channels_);
   for (int ch = 0; ch < channels_; ++ch) uniform[ch] = Uniform(id, ch);
-  handle->MarkDirty();
-  std::byte* data = handle->data().data();
+  uint64_t lane_mask = 0;
+  for (const Lane& lane : lanes) lane_mask |= uint64_t{1} << lane.channel;
+  handle.MarkDirty();
+  std::byte* data = handle.data().data();
   std::vector<uint16_t> apron;
-  Status status = WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) -> Status {
+  return WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) -> Status {
     using L = decltype(l);
+    // Readers never see an unpublished brick; the stripe lock only keeps sanitizers and a reader
+    // of a previous owner of the id honest. It is not held while reading neighbours.
     for (int ch = 0; ch < channels_; ++ch) {
-      for (const Box& part : Subtract(stored, ch == c ? written : core)) {
+      const bool is_lane = (lane_mask >> ch) & 1;
+      for (const Box& part : Subtract(stored, is_lane ? written : core)) {
         const Box own = part.Intersect(interior);
         if (!own.empty()) {
           std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
@@ -639,38 +641,28 @@ Status Octree::AllocateBrick(uint32_t id, const NodeKey& key, int c, const uint1
         for (const Box& around : Subtract(part, interior)) {
           apron.resize(around.VoxelCount());
           OCTO_RETURN_IF_ERROR(ReadRepresentation(key.level, around, ch, apron.data()));
+          const Lane one{ch, apron.data()};
           std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
-          WriteBrickRegion<L>(data, layout, around, ch, apron.data(), around);
+          WriteBrickRegion<L>(data, layout, around, std::span<const Lane>(&one, 1), around, nullptr,
+                              Box{}, static_cast<SampleStats*>(nullptr));
         }
       }
     }
-    // Channel c of the written apron.
+    std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+    // The lanes over the written apron.
     for (const Box& part : Subtract(written, core)) {
-      std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
-      WriteBrickRegion<L>(data, layout, part, c, src, src_box);
+      WriteBrickRegion<L>(data, layout, part, lanes, src_box, nullptr, Box{},
+                          static_cast<SampleStats*>(nullptr));
     }
     // The core last: the apron passes above touch the first and last cache line of every row,
-    // which this pass then finds in cache.
+    // which this pass then finds in cache. touched->written (the valid written interior) lies
+    // inside the core.
     if (!core.empty()) {
-      std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
-      // touched->written (the valid written interior) lies inside core.
-      InitBrickRegion<L>(data, layout, core, c, src, src_box, uniform.data(), touched->written,
-                         &touched->stats);
+      WriteBrickRegion<L>(data, layout, core, lanes, src_box, uniform.data(), touched->written,
+                          touched->planes.data());
     }
     return Status::Ok();
   });
-  if (!status.ok()) {
-    handle->Reset();
-    pool_.Free(brick);
-    return status;
-  }
-  handle->Reset();
-  {
-    std::unique_lock<std::shared_mutex> lock(mu_);
-    nodes_[id].brick = brick;
-  }
-  changes_.Append(id, NodeChangeKind::kUpdated);
-  return Status::Ok();
 }
 
 Status Octree::DropBrick(uint32_t id, const NodeKey& key) {
@@ -680,6 +672,7 @@ Status Octree::DropBrick(uint32_t id, const NodeKey& key) {
     brick = nodes_[id].brick;
     nodes_[id].brick = 0;
   }
+  plane_tables_.erase(id);
   pool_.Free(brick);
   changes_.Append(id, NodeChangeKind::kUpdated);
   // Neighbours' aprons showed this node's voxels; now they must show its average.
@@ -705,6 +698,7 @@ Status Octree::DeleteChildren(uint32_t id, const NodeKey& key) {
         if (nodes_[n].brick != 0) bricks.push_back(nodes_[n].brick);
         nodes_[n] = NodeRecord{};
         progress_.erase(n);
+        plane_tables_.erase(n);
       }
       group_parent_[g] = kFreeGroup;
       free_groups_.insert(g);
@@ -750,7 +744,9 @@ Status Octree::RefreshAprons(int level, const Box& region) {
         values.resize(part.VoxelCount());
         for (int c = 0; c < channels_; ++c) {
           OCTO_RETURN_IF_ERROR(ReadRepresentation(level, part, c, values.data()));
-          OCTO_RETURN_IF_ERROR(PutRegion(nodes_[loc.id].brick, nk, part, c, values.data(), part));
+          const Lane lane{c, values.data()};
+          OCTO_RETURN_IF_ERROR(
+              PutRegion(nodes_[loc.id].brick, nk, part, std::span<const Lane>(&lane, 1), part));
         }
         changes_.Append(loc.id, NodeChangeKind::kUpdated);
       }
@@ -762,20 +758,43 @@ Status Octree::RefreshAprons(int level, const Box& region) {
 // --------------------------------------------------------------------------------------------
 // Voxel access.
 
-Status Octree::PutRegion(uint32_t brick, const NodeKey& key, const Box& region, int c,
-                         const uint16_t* src, const Box& src_box, Touched* touched) {
+Status Octree::PutRegion(uint32_t brick, const NodeKey& key, const Box& region, Lanes lanes,
+                         const Box& src_box, Touched* touched) const {
   OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
   handle.MarkDirty();
   std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
   const BrickLayout layout(geometry_, key);
   WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) {
     if (touched != nullptr) {
-      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, c, src, src_box,
-                                    touched->written, &touched->stats);
+      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, lanes, src_box, nullptr,
+                                    touched->written, touched->planes.data());
     } else {
-      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, c, src, src_box);
+      WriteBrickRegion<decltype(l)>(handle.data().data(), layout, region, lanes, src_box, nullptr,
+                                    Box{}, static_cast<SampleStats*>(nullptr));
     }
   });
+  return Status::Ok();
+}
+
+Result<Octree::SampleStats> Octree::ScanPlane(uint32_t brick, const NodeKey& key, int c,
+                                              int64_t z) const {
+  OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
+  const std::byte* data = std::as_const(handle).data().data();
+  const BrickLayout layout(geometry_, key);
+  const Box valid = geometry_.ValidBox(key);
+  SampleStats st;
+  WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) {
+    for (int64_t y = valid.lo[1]; y < valid.hi[1]; ++y) {
+      ScanRow<decltype(l)>(data + layout.ByteOffset(valid.lo[0], y, z, c), layout.channels,
+                           valid.Extent(0), st.lo, st.hi, st.sum);
+    }
+  });
+  return st;
+}
+
+Status Octree::ForEach(size_t n, const std::function<Status(size_t)>& fn) const {
+  if (workers_ != nullptr && n > 1) return workers_->ParallelFor(n, fn);
+  for (size_t i = 0; i < n; ++i) OCTO_RETURN_IF_ERROR(fn(i));
   return Status::Ok();
 }
 
@@ -822,56 +841,104 @@ Status Octree::ReadRepresentation(int level, const Box& box, int c, uint16_t* ou
   });
 }
 
-Status Octree::WriteLevel(int level, const Box& box, int c, const uint16_t* values,
-                          std::vector<Touched>* touched) {
+Status Octree::WriteLevel(int level, const Box& box, Lanes lanes, std::vector<Touched>* touched) {
   const Box nodes =
       geometry_.NodesStoringAny(level, box).Intersect(geometry_.NonVirtualNodes(level));
+  // Serial: the work list, with the nodes (and so the structure) created first.
+  std::vector<LevelItem> items;
   for (int64_t iz = nodes.lo[2]; iz < nodes.hi[2]; ++iz) {
     for (int64_t iy = nodes.lo[1]; iy < nodes.hi[1]; ++iy) {
       for (int64_t ix = nodes.lo[0]; ix < nodes.hi[0]; ++ix) {
-        const NodeKey key{level, {ix, iy, iz}};
-        const Box interior = geometry_.NodeBox(key).Intersect(box);
-        const Box part = geometry_.StoredBox(key).Intersect(box);
+        LevelItem item;
+        item.key = NodeKey{level, {ix, iy, iz}};
+        const Box interior = geometry_.NodeBox(item.key).Intersect(box);
         if (interior.empty()) {
           // Only the apron of this node overlaps: update it if the node exists with a brick.
-          const Located loc = Locate(key);
+          const Located loc = Locate(item.key);
           if (!loc.exact || nodes_[loc.id].brick == 0) continue;
-          OCTO_RETURN_IF_ERROR(PutRegion(nodes_[loc.id].brick, key, part, c, values, box));
-          changes_.Append(loc.id, NodeChangeKind::kUpdated);
+          item.id = loc.id;
+          item.brick = nodes_[loc.id].brick;
+          item.apron_only = true;
+          items.push_back(std::move(item));
           continue;
         }
-        OCTO_ASSIGN_OR_RETURN(const uint32_t id, EnsureNode(key));
-        if (level == 0) MarkLeafWritten(id, key, interior, c);
-        if (nodes_[id].brick == 0) {
-          // Without a brick the node shows its uniform value; only a different value needs
-          // one, and the new brick then receives the values as it is initialised.
-          const uint16_t u = Uniform(id, c);
-          bool differs = false;
-          const int64_t n = interior.Extent(0);
-          for (int64_t z = interior.lo[2]; z < interior.hi[2] && !differs; ++z) {
-            for (int64_t y = interior.lo[1]; y < interior.hi[1] && !differs; ++y) {
-              const uint16_t* row = values + BufferIndex(box, interior.lo[0], y, z);
-              differs = std::any_of(row, row + n, [u](uint16_t v) { return v != u; });
-            }
-          }
-          if (!differs) {
-            touched->push_back(Touched{id, Box{}, SampleStats{}});
-            continue;
-          }
+        OCTO_ASSIGN_OR_RETURN(item.id, EnsureNode(item.key));
+        if (level == 0) {
+          for (const Lane& lane : lanes) MarkLeafWritten(item.id, item.key, interior, lane.channel);
         }
-        // The statistics of the written valid interior are gathered as it is written.
-        Touched t{id, geometry_.ValidBox(key).Intersect(box), SampleStats{}};
-        if (nodes_[id].brick == 0) {
-          OCTO_RETURN_IF_ERROR(AllocateBrick(id, key, c, values, box, &t));
-        } else {
-          OCTO_RETURN_IF_ERROR(PutRegion(nodes_[id].brick, key, part, c, values, box, &t));
-          changes_.Append(id, NodeChangeKind::kUpdated);
-        }
-        touched->push_back(t);
+        item.brick = nodes_[item.id].brick;
+        items.push_back(std::move(item));
       }
     }
   }
-  return Status::Ok();
+  // Parallel, read-only on the node table: which brickless nodes receive a value different from
+  // their uniform one (only those need a brick).
+  OCTO_RETURN_IF_ERROR(ForEach(items.size(), [&](size_t i) -> Status {
+    LevelItem& item = items[i];
+    if (item.apron_only || item.brick != 0) return Status::Ok();
+    const Box interior = geometry_.NodeBox(item.key).Intersect(box);
+    const int64_t n = interior.Extent(0);
+    bool differs = false;
+    for (const Lane& lane : lanes) {
+      const uint16_t u = Uniform(item.id, lane.channel);
+      for (int64_t z = interior.lo[2]; z < interior.hi[2] && !differs; ++z) {
+        for (int64_t y = interior.lo[1]; y < interior.hi[1] && !differs; ++y) {
+          const uint16_t* row = lane.values + BufferIndex(box, interior.lo[0], y, z);
+          differs = std::any_of(row, row + n, [u](uint16_t v) { return v != u; });
+        }
+      }
+      if (differs) break;
+    }
+    item.unchanged = !differs;
+    item.allocate = differs;
+    return Status::Ok();
+  }));
+  // Serial: brick ids for the nodes that need one (deterministic order).
+  Status status;
+  for (LevelItem& item : items) {
+    if (!item.allocate) continue;
+    auto brick = pool_.Allocate();
+    if (!brick.ok()) {
+      status = brick.status();
+      break;
+    }
+    item.brick = *brick;
+  }
+  // Parallel: every item writes only its own brick (the new ones are not published yet, so a
+  // neighbour's apron initialisation sees their uniform value — what the new brick holds outside
+  // the block too); statistics of the written values are gathered per item.
+  if (status.ok()) {
+    status = ForEach(items.size(), [&](size_t i) -> Status {
+      LevelItem& item = items[i];
+      if (item.unchanged) return Status::Ok();
+      const Box part = geometry_.StoredBox(item.key).Intersect(box);
+      if (item.apron_only) return PutRegion(item.brick, item.key, part, lanes, box);
+      Touched& t = item.touched;
+      t.id = item.id;
+      t.written = geometry_.ValidBox(item.key).Intersect(box);
+      t.planes.assign(lanes.size() * static_cast<size_t>(t.written.Extent(2)), SampleStats{});
+      if (item.allocate) return InitBrick(item.brick, item.id, item.key, lanes, box, &t);
+      return PutRegion(item.brick, item.key, part, lanes, box, &t);
+    });
+  }
+  // Serial: publish the new bricks (or return them on error), record the changes.
+  {
+    std::unique_lock<std::shared_mutex> lock(mu_);
+    for (LevelItem& item : items) {
+      if (item.allocate && item.brick != 0 && status.ok()) nodes_[item.id].brick = item.brick;
+    }
+  }
+  for (LevelItem& item : items) {
+    if (!status.ok()) {
+      if (item.allocate && item.brick != 0) pool_.Free(item.brick);
+      continue;
+    }
+    if (!item.unchanged) changes_.Append(item.id, NodeChangeKind::kUpdated);
+    if (item.apron_only) continue;
+    if (item.unchanged) item.touched.id = item.id;
+    touched->push_back(std::move(item.touched));
+  }
+  return status;
 }
 
 void Octree::MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, int c) {
@@ -899,50 +966,87 @@ void Octree::MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, in
   }
 }
 
-// Step 3 for one node: statistics of channel c, completeness, pruning.
-Status Octree::UpdateNode(const Touched& touched, int c) {
+// Step 3 for one node: statistics of the lanes' channels, completeness, pruning.
+Status Octree::UpdateNode(const Touched& touched, Lanes lanes) {
   const uint32_t id = touched.id;
   if ((nodes_[id].flags & kLive) == 0) return Status::Ok();  // Deleted by an ancestor meanwhile.
   const NodeKey key = KeyOf(id);
-  ChannelStats s = Stat(id, c);
   const uint32_t brick = nodes_[id].brick;
-  if (brick != 0) {
-    // The written part's statistics are known; scan only the rest of the valid interior.
-    const Box valid = geometry_.ValidBox(key);
-    uint32_t lo = touched.stats.lo, hi = touched.stats.hi;
-    uint64_t sum = touched.stats.sum;
-    const std::vector<Box> rest = Subtract(valid, touched.written);
-    if (!rest.empty()) {
-      OCTO_ASSIGN_OR_RETURN(BrickHandle handle, pool_.Pin(brick));
-      const std::byte* data = std::as_const(handle).data().data();
-      const BrickLayout layout(geometry_, key);
-      WithLayout(geometry_.bytes_per_sample(), channels_, [&](auto l) {
-        for (const Box& r : rest) {
-          for (int64_t z = r.lo[2]; z < r.hi[2]; ++z) {
-            for (int64_t y = r.lo[1]; y < r.hi[1]; ++y) {
-              ScanRow<decltype(l)>(data + layout.ByteOffset(r.lo[0], y, z, c), layout.channels,
-                                   r.Extent(0), lo, hi, sum);
+  const Box valid = geometry_.ValidBox(key);
+  const int64_t valid_planes = valid.Extent(2);
+  const int64_t written_planes = touched.written.Extent(2);
+  // A write that covers whole planes of the valid interior gives those planes' statistics; a
+  // partial one leaves them to a rescan of the plane.
+  const bool whole_planes = !touched.written.empty() &&
+                            touched.written.Extent(0) == valid.Extent(0) &&
+                            touched.written.Extent(1) == valid.Extent(1);
+  std::vector<ChannelStats> updated(lanes.size());
+  for (size_t li = 0; li < lanes.size(); ++li) {
+    const int c = lanes[li].channel;
+    ChannelStats s = Stat(id, c);
+    if (brick != 0) {
+      SampleStats total;
+      if (touched.written == valid) {
+        // The whole brick was just written: its statistics are known.
+        const SampleStats* written = touched.planes.data() + li * written_planes;
+        for (int64_t z = 0; z < written_planes; ++z) total.Add(written[z]);
+        if (auto it = plane_tables_.find(id);
+            it != plane_tables_.end() && ((it->second.known >> c) & 1) != 0) {
+          std::copy(written, written + written_planes,
+                    it->second.planes.begin() + static_cast<size_t>(c) * valid_planes);
+        }
+      } else {
+        // Keep exact per-plane statistics of this incomplete node, so that the rest of the brick
+        // is never rescanned.
+        PlaneTable& table = plane_tables_[id];
+        if (table.planes.empty())
+          table.planes.resize(static_cast<size_t>(channels_ * valid_planes));
+        SampleStats* planes = table.planes.data() + static_cast<size_t>(c) * valid_planes;
+        if (((table.known >> c) & 1) == 0) {
+          // First partial write of this channel: one scan of every plane (already written ones
+          // included).
+          for (int64_t z = 0; z < valid_planes; ++z) {
+            OCTO_ASSIGN_OR_RETURN(planes[z], ScanPlane(brick, key, c, valid.lo[2] + z));
+          }
+          table.known |= uint64_t{1} << c;
+        } else {
+          for (int64_t z = touched.written.lo[2]; z < touched.written.hi[2]; ++z) {
+            const int64_t p = z - valid.lo[2];
+            if (whole_planes) {
+              planes[p] = touched.planes[li * written_planes + (z - touched.written.lo[2])];
+            } else {
+              OCTO_ASSIGN_OR_RETURN(planes[p], ScanPlane(brick, key, c, z));
             }
           }
         }
-      });
+        for (int64_t z = 0; z < valid_planes; ++z) total.Add(planes[z]);
+      }
+      s.min = static_cast<uint16_t>(total.lo);
+      s.max = static_cast<uint16_t>(total.hi);
+      s.avg = static_cast<double>(total.sum) / static_cast<double>(valid.VoxelCount());
+    } else {
+      s.min = s.max = Uniform(id, c);
     }
-    s.min = static_cast<uint16_t>(lo);
-    s.max = static_cast<uint16_t>(hi);
-    s.avg = static_cast<double>(sum) / static_cast<double>(valid.VoxelCount());
-  } else {
-    s.min = s.max = Uniform(id, c);
-  }
-  // A childless node's subtree is itself, unless its children were deleted as homogeneous: then
-  // the stored subtree range (their data's) stays.
-  const bool children_deleted =
-      key.level > 0 && nodes_[id].child_group == 0 && (nodes_[id].flags & kComplete) != 0;
-  if (!children_deleted) {
-    s.sub_min = s.min;
-    s.sub_max = s.max;
-  } else {
-    s.sub_min = std::min(s.sub_min, s.min);
-    s.sub_max = std::max(s.sub_max, s.max);
+    // A childless node's subtree is itself, unless its children were deleted as homogeneous:
+    // then the stored subtree range (their data's) stays.
+    const bool children_deleted =
+        key.level > 0 && nodes_[id].child_group == 0 && (nodes_[id].flags & kComplete) != 0;
+    if (!children_deleted) {
+      s.sub_min = s.min;
+      s.sub_max = s.max;
+    } else {
+      s.sub_min = std::min(s.sub_min, s.min);
+      s.sub_max = std::max(s.sub_max, s.max);
+    }
+    const uint32_t group = nodes_[id].child_group;
+    if (group != 0) {
+      for (uint32_t child = group * 8; child < group * 8 + 8; ++child) {
+        if ((nodes_[child].flags & kVirtual) != 0) continue;  // Virtual voxels never count.
+        s.sub_min = std::min(s.sub_min, Stat(child, c).sub_min);
+        s.sub_max = std::max(s.sub_max, Stat(child, c).sub_max);
+      }
+    }
+    updated[li] = s;
   }
   bool complete = (nodes_[id].flags & kComplete) != 0;
   const uint32_t group = nodes_[id].child_group;
@@ -950,18 +1054,16 @@ Status Octree::UpdateNode(const Touched& touched, int c) {
     complete = true;
     for (uint32_t child = group * 8; child < group * 8 + 8; ++child) {
       if ((nodes_[child].flags & kComplete) == 0) complete = false;
-      if ((nodes_[child].flags & kVirtual) != 0) continue;  // Virtual voxels never count.
-      s.sub_min = std::min(s.sub_min, Stat(child, c).sub_min);
-      s.sub_max = std::max(s.sub_max, Stat(child, c).sub_max);
     }
   }
   {
     std::unique_lock<std::shared_mutex> lock(mu_);
-    Stat(id, c) = s;
+    for (size_t li = 0; li < lanes.size(); ++li) Stat(id, lanes[li].channel) = updated[li];
     if (complete) nodes_[id].flags |= kComplete;
   }
   changes_.Append(id, NodeChangeKind::kUpdated);
   if (!complete) return Status::Ok();  // Incomplete nodes are never pruned.
+  plane_tables_.erase(id);             // Its statistics are final until the next overwrite.
 
   bool brick_homogeneous = true, subtree_homogeneous = true;
   for (int ch = 0; ch < channels_; ++ch) {
@@ -980,61 +1082,90 @@ Status Octree::UpdateNode(const Touched& touched, int c) {
 // Insert.
 
 Status Octree::Insert(int channel, const Box& box, std::span<const std::byte> data) {
-  if (channel < 0 || channel >= channels_) {
-    return InvalidArgumentError("octree: channel " + std::to_string(channel) + " of " +
-                                std::to_string(channels_));
-  }
+  const ChannelBlock block{channel, data};
+  return Insert(box, std::span<const ChannelBlock>(&block, 1));
+}
+
+Status Octree::Insert(const Box& box, std::span<const ChannelBlock> blocks, WorkerPool* workers) {
   if (box.empty() || !geometry_.ValidExtent(0).ContainsBox(box)) {
     return OutOfRangeError("octree: block " + box.ToString() + " is empty or outside the volume " +
                            geometry_.ValidExtent(0).ToString());
   }
   const int bps = geometry_.bytes_per_sample();
   const uint64_t voxels = box.VoxelCount();
-  if (data.size() != voxels * static_cast<uint64_t>(bps)) {
-    return InvalidArgumentError("octree: block " + box.ToString() + " needs " +
-                                std::to_string(voxels * bps) + " bytes, got " +
-                                std::to_string(data.size()));
-  }
-  std::lock_guard<std::mutex> insert_lock(insert_mu_);
-  // The block as uint16 samples. 16-bit data is used in place when it is aligned.
-  std::vector<uint16_t> level_values;
-  const uint16_t* values;
-  if (bps == 2 && reinterpret_cast<uintptr_t>(data.data()) % alignof(uint16_t) == 0) {
-    values = reinterpret_cast<const uint16_t*>(data.data());
-  } else {
-    level_values.resize(voxels);
-    if (bps == 2) {
-      std::memcpy(level_values.data(), data.data(), data.size());
-    } else {
-      const auto* bytes = reinterpret_cast<const uint8_t*>(data.data());
-      std::copy(bytes, bytes + voxels, level_values.begin());
+  uint64_t seen = 0;
+  for (const ChannelBlock& b : blocks) {
+    if (b.channel < 0 || b.channel >= channels_) {
+      return InvalidArgumentError("octree: channel " + std::to_string(b.channel) + " of " +
+                                  std::to_string(channels_));
     }
-    values = level_values.data();
+    if ((seen >> b.channel) & 1) {
+      return InvalidArgumentError("octree: channel " + std::to_string(b.channel) +
+                                  " given twice in one insert");
+    }
+    seen |= uint64_t{1} << b.channel;
+    if (b.data.size() != voxels * static_cast<uint64_t>(bps)) {
+      return InvalidArgumentError("octree: block " + box.ToString() + " needs " +
+                                  std::to_string(voxels * bps) + " bytes, got " +
+                                  std::to_string(b.data.size()));
+    }
   }
+  if (blocks.empty()) return Status::Ok();
+  std::lock_guard<std::mutex> insert_lock(insert_mu_);
+  workers_ = workers;
+  // The blocks as uint16 samples, ascending by channel. 16-bit data is used in place when it is
+  // aligned.
+  const size_t n_lanes = blocks.size();
+  std::vector<std::vector<uint16_t>> level_values(n_lanes);
+  std::vector<Lane> lanes(n_lanes);
+  for (size_t li = 0; li < n_lanes; ++li) {
+    const ChannelBlock& b = blocks[li];
+    lanes[li].channel = b.channel;
+    if (bps == 2 && reinterpret_cast<uintptr_t>(b.data.data()) % alignof(uint16_t) == 0) {
+      lanes[li].values = reinterpret_cast<const uint16_t*>(b.data.data());
+      continue;
+    }
+    level_values[li].resize(voxels);
+    if (bps == 2) {
+      std::memcpy(level_values[li].data(), b.data.data(), b.data.size());
+    } else {
+      const auto* bytes = reinterpret_cast<const uint8_t*>(b.data.data());
+      std::copy(bytes, bytes + voxels, level_values[li].begin());
+    }
+    lanes[li].values = level_values[li].data();
+  }
+  std::sort(lanes.begin(), lanes.end(),
+            [](const Lane& a, const Lane& b) { return a.channel < b.channel; });
 
   const int root = geometry_.root_level();
   std::vector<std::vector<Touched>> touched(root + 1);
   // Step 1: the leaves.
-  OCTO_RETURN_IF_ERROR(WriteLevel(0, box, channel, values, &touched[0]));
-  // Step 2: the path to the root, one level at a time. `values` holds level L-1 over `dirty`.
+  OCTO_RETURN_IF_ERROR(WriteLevel(0, box, lanes, &touched[0]));
+  // Step 2: the path to the root, one level at a time. The lanes hold level L-1 over `dirty`.
   Box dirty = box;
-  std::vector<uint16_t> children, parents;
+  std::vector<std::vector<uint16_t>> children(n_lanes), parents(n_lanes);
   for (int level = 1; level <= root; ++level) {
     const Box cover = CoarsenBox(dirty).Intersect(geometry_.ValidExtent(level));
     const Box child_box = RefineBox(cover).Intersect(geometry_.ValidExtent(level - 1));
-    const uint16_t* child_values = values;
-    if (child_box != dirty) {
-      // The cover's children reach beyond what was just written: read them all back. (When
-      // they coincide, the level's representation over `dirty` is exactly `values`.)
-      children.resize(child_box.VoxelCount());
-      OCTO_RETURN_IF_ERROR(ReadRepresentation(level - 1, child_box, channel, children.data()));
-      child_values = children.data();
+    OCTO_RETURN_IF_ERROR(ForEach(n_lanes, [&](size_t li) -> Status {
+      const uint16_t* child_values = lanes[li].values;
+      if (child_box != dirty) {
+        // The cover's children reach beyond what was just written: read them all back. (When
+        // they coincide, the level's representation over `dirty` is exactly the lane.)
+        children[li].resize(child_box.VoxelCount());
+        OCTO_RETURN_IF_ERROR(
+            ReadRepresentation(level - 1, child_box, lanes[li].channel, children[li].data()));
+        child_values = children[li].data();
+      }
+      parents[li].resize(cover.VoxelCount());
+      Downsample(child_values, child_box, cover, parents[li].data());
+      return Status::Ok();
+    }));
+    for (size_t li = 0; li < n_lanes; ++li) {
+      level_values[li].swap(parents[li]);  // Keeps the values alive; `parents` is reused.
+      lanes[li].values = level_values[li].data();
     }
-    parents.resize(cover.VoxelCount());
-    Downsample(child_values, child_box, cover, parents.data());
-    OCTO_RETURN_IF_ERROR(WriteLevel(level, cover, channel, parents.data(), &touched[level]));
-    level_values.swap(parents);  // Keeps `values` alive; `parents` is reused next level.
-    values = level_values.data();
+    OCTO_RETURN_IF_ERROR(WriteLevel(level, cover, lanes, &touched[level]));
     dirty = cover;
   }
   // Step 3: statistics, completeness and pruning, bottom-up so children are final first.
@@ -1044,9 +1175,27 @@ Status Octree::Insert(int channel, const Box& box, std::span<const std::byte> da
     std::vector<Touched>& nodes = touched[level];
     std::sort(nodes.begin(), nodes.end(),
               [](const Touched& a, const Touched& b) { return a.id < b.id; });
-    for (const Touched& t : nodes) OCTO_RETURN_IF_ERROR(UpdateNode(t, channel));
+    for (const Touched& t : nodes) OCTO_RETURN_IF_ERROR(UpdateNode(t, lanes));
   }
   return Status::Ok();
+}
+
+std::vector<uint32_t> Octree::PruningError() const {
+  std::vector<uint32_t> error(channels_, 0);
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  for (uint32_t id = 0; id < nodes_.size(); ++id) {
+    if (!IsLiveId(id)) continue;
+    const NodeRecord& r = nodes_[id];
+    // A terminal node without a brick shows its uniform value for its whole region.
+    if ((r.flags & kVirtual) != 0 || r.brick != 0 || r.child_group != 0) continue;
+    for (int c = 0; c < channels_; ++c) {
+      const ChannelStats& st = Stat(id, c);
+      const int u = Uniform(id, c);
+      const int e = std::max(static_cast<int>(st.sub_max) - u, u - static_cast<int>(st.sub_min));
+      error[c] = std::max<uint32_t>(error[c], static_cast<uint32_t>(std::max(e, 0)));
+    }
+  }
+  return error;
 }
 
 }  // namespace octoscope::octree

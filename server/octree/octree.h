@@ -33,14 +33,19 @@
 // 66^3/64^3 - 1 = 9.7 % more voxel writes (and pool bytes) per level, for 32^3 bricks 19.9 %.
 //
 // Costs: construction is memory-bound; the hot loops are row kernels (octree.cpp) that move
-// whole rows with precomputed offsets and compile-time channel strides. Per insert, each voxel
-// is read once from the block and written once into its leaf brick (a new brick is initialised
-// in the same pass: all channels as whole-voxel stores); step 2 reuses the block itself as level
-// 0 when the block is aligned to parent groups; step 3 takes the statistics of the written part
-// of each brick from the write pass and scans only the rest of the brick (nothing for
-// brick-aligned slabs). Measured on a 2-core VM, 512x512x256 x 2 ch uint16, 64^3 bricks, RAM
-// page store, 64-plane slabs: ~0.6 s in Insert per volume (~450 MB/s; the per-voxel version took
-// ~10x longer), of which a good part is first-touch page faults of the brick pool's pages.
+// whole rows with precomputed offsets and compile-time channel strides. An insert may carry
+// several channels of one box (Insert(box, blocks)): every brick is then traversed once for all
+// of them (each row, a few hundred bytes, gets one short pass per channel while it is in L1).
+// Per insert, each voxel is read once from the block and written once into its leaf brick (a new
+// brick is initialised in the same pass); step 2 reuses the block itself as level 0 when the
+// block is aligned to parent groups; step 3 takes the statistics of the written part of each
+// brick from the write pass, per z plane. For an INCOMPLETE node written partially, exact
+// per-plane statistics of its brick are kept (PlaneTable, dropped when the node completes), so a
+// thin insert (a single plane, as a live acquisition delivers them) costs time proportional to
+// what it writes, never a rescan of the whole brick. With OctreeOptions::workers, the bricks of
+// each level of an insert are written in parallel (each task writes only its own brick; the node
+// table is not modified meanwhile; structure changes, allocation, publication and step 3 stay on
+// the inserting thread).
 //
 // Overwrites: writing a voxel again replaces its value everywhere (it is still "written"). If it
 // lands in a node that was already pruned, the node (and missing nodes below it, created from its
@@ -48,19 +53,21 @@
 // brick regains the new data but not the old sub-threshold detail. With threshold 0 nothing is
 // lost (a pruned brick was exactly constant).
 //
-// Thread safety: Insert may be called from several threads at once (typically one builder thread
-// per channel); inserts are serialised internally by one mutex (the paper's per-channel
-// parallelism is not exploited: steps 2 and 3 of one channel read bricks other channels'
-// pruning could drop). GetNode, ReadBrick, stats, DrainChanges, Save and Flush may be called at
-// any time from any thread: the node table is guarded by a shared_mutex (readers shared, the
+// Thread safety: Insert may be called from several threads at once; inserts are serialised
+// internally by one mutex (to use several cores, give one insert several channels and a
+// WorkerPool). GetNode, ReadBrick, stats, PruningError, DrainChanges, Save and Flush may be called
+// at any time from any thread: the node table is guarded by a shared_mutex (readers shared, the
 // inserting thread exclusive for each mutation, never while holding a page pin), brick bytes by
-// striped mutexes, so a reader always sees a consistent node and an untorn brick.
+// striped mutexes, and a new brick is published only when it is complete, so a reader always sees
+// a consistent node and an untorn brick.
 #ifndef OCTOSCOPE_OCTREE_OCTREE_H_
 #define OCTOSCOPE_OCTREE_OCTREE_H_
 
+#include <algorithm>
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <istream>
 #include <memory>
 #include <mutex>
@@ -79,6 +86,7 @@
 #include "paging/page_cache.h"
 #include "util/result.h"
 #include "util/status.h"
+#include "util/worker_pool.h"
 #include "volume/volume_info.h"
 
 namespace octoscope::octree {
@@ -98,6 +106,13 @@ struct OctreeOptions {
   std::vector<uint32_t> homogeneity_tolerance;
   // Per-channel background value (what not-yet-inserted voxels show); empty = 0.
   std::vector<uint16_t> background;
+};
+
+// One channel's samples of a block for Insert: the block's voxels in the stored type
+// (bytes_per_sample each, native byte order), x fastest, then y, then z.
+struct ChannelBlock {
+  int channel = 0;
+  std::span<const std::byte> data;
 };
 
 // One channel's statistics of a node. For a node with a brick: over the valid interior voxels of
@@ -161,6 +176,12 @@ class Octree {
   // cache errors (I/O, budget) are passed on — the tree then stays consistent but may lack part
   // of the block (re-inserting it is safe).
   Status Insert(int channel, const Box& box, std::span<const std::byte> data);
+  // Inserts several channels' blocks over the same box at once (each channel at most once, in
+  // any order): the same result as inserting them one by one, but every brick is written in one
+  // pass for all of them. With `workers`, the bricks of each level are written on the pool's
+  // threads. Errors as above.
+  Status Insert(const Box& box, std::span<const ChannelBlock> blocks,
+                WorkerPool* workers = nullptr);
 
   // The node with this key / id, or nullopt when it does not exist (not created, pruned, id free).
   std::optional<NodeSnapshot> GetNode(const NodeKey& key) const;
@@ -172,6 +193,11 @@ class Octree {
 
   std::vector<NodeChange> DrainChanges() { return changes_.Drain(); }
   OctreeStats stats() const;  // O(nodes): scans the node table.
+  // Per channel, the largest |voxel - shown value| over every valid voxel the tree represents by
+  // an average instead of its own value (a pruned brick or subtree), in stored units: 0 for
+  // every channel when the homogeneity tolerance is 0 (lossless). Exact for complete nodes: a
+  // pruned node's subtree range is its data's range. O(nodes).
+  std::vector<uint32_t> PruningError() const;
 
   // Writes every dirty brick page back and syncs the store (PageCache::Flush).
   Status Flush();
@@ -220,15 +246,47 @@ class Octree {
     uint32_t lo = 0xffffffffu;
     uint32_t hi = 0;
     uint64_t sum = 0;
+    void Add(const SampleStats& o) {
+      lo = std::min(lo, o.lo);
+      hi = std::max(hi, o.hi);
+      sum += o.sum;
+    }
   };
+  // One channel of the block being inserted at some level: uint16 samples laid out over the
+  // level's block box, x fastest.
+  struct Lane {
+    int channel;
+    const uint16_t* values;
+  };
+  using Lanes = std::span<const Lane>;
   // A node whose interior an insert wrote (step 1 or 2), for step 3: `written` is the part of
   // its valid interior now holding the inserted values (empty when the node stayed brickless)
-  // and `stats` their statistics, gathered while they were hot in cache, so step 3 scans only
-  // the rest of the brick — nothing at all for the usual brick-aligned slabs.
+  // and `planes` their statistics per lane and z plane ([lane * written.Extent(2) + z - lo]),
+  // gathered while they were hot in cache, so step 3 never rescans what was just written.
   struct Touched {
-    uint32_t id;
+    uint32_t id = 0;
     Box written;
-    SampleStats stats;
+    std::vector<SampleStats> planes;
+  };
+  // Exact per-z-plane statistics of the valid interior of an INCOMPLETE node's brick, per
+  // channel ([c * planes + z - valid.lo[2]]), kept while the node is being filled in so that a
+  // thin insert updates its node's statistics in time proportional to what it wrote (a rescan
+  // of the whole brick per plane would cost a brick depth's worth of work per plane). A
+  // channel's entries are valid only when its bit in `known` is set. Dropped when the node
+  // completes or loses its brick.
+  struct PlaneTable {
+    uint64_t known = 0;
+    std::vector<SampleStats> planes;
+  };
+  // One node of WriteLevel's work list.
+  struct LevelItem {
+    NodeKey key;
+    uint32_t id = 0;
+    uint32_t brick = 0;       // Existing brick, or the one allocated for this insert.
+    bool apron_only = false;  // Only the node's apron overlaps the block.
+    bool allocate = false;    // A brick is allocated for this insert (published after).
+    bool unchanged = false;   // Brickless and the block equals its uniform value.
+    Touched touched;
   };
 
   Octree(const BrickGeometry& geometry, paging::PageCache* cache, uint32_t bricks_per_page);
@@ -250,25 +308,31 @@ class Octree {
   // --- Mutations (inserting thread only; they take mu_ exclusively themselves). ---
   Result<uint32_t> EnsureNode(const NodeKey& key);
   Status CreateChildren(uint32_t id);
-  // Gives node `id` (brickless) a brick showing what it showed so far, except that channel c
-  // of StoredBox(key) ∩ src_box is written from `src` (laid out over src_box) and the
-  // statistics of touched->written (a part of it) are accumulated into touched->stats.
-  Status AllocateBrick(uint32_t id, const NodeKey& key, int c, const uint16_t* src,
-                       const Box& src_box, Touched* touched);
+  // Fills the new (unpublished) brick of node `id` so that it shows what the node showed so far,
+  // except that the lanes' channels of StoredBox(key) ∩ src_box are written from the lanes
+  // (laid out over src_box), gathering the statistics of touched->written. Thread-safe against
+  // other InitBrick/PutRegion calls on other bricks of the same level (the parallel phase of
+  // WriteLevel: the node table is not modified meanwhile).
+  Status InitBrick(uint32_t brick, uint32_t id, const NodeKey& key, Lanes lanes, const Box& src_box,
+                   Touched* touched) const;
   Status DropBrick(uint32_t id, const NodeKey& key);
   Status DeleteChildren(uint32_t id, const NodeKey& key);
   Status RefreshAprons(int level, const Box& region);
 
   // --- Voxel access (inserting thread). Buffers are laid out over a box, x fastest. ---
   Status ReadRepresentation(int level, const Box& box, int c, uint16_t* out) const;
-  Status WriteLevel(int level, const Box& box, int c, const uint16_t* values,
-                    std::vector<Touched>* touched);
+  Status WriteLevel(int level, const Box& box, Lanes lanes, std::vector<Touched>* touched);
   void MarkLeafWritten(uint32_t id, const NodeKey& key, const Box& box, int c);
-  Status UpdateNode(const Touched& touched, int c);
-  // Writes channel c of `region` of the brick from `src` (laid out over src_box); with
-  // `touched`, accumulates the statistics of touched->written (a part of region) as well.
-  Status PutRegion(uint32_t brick, const NodeKey& key, const Box& region, int c,
-                   const uint16_t* src, const Box& src_box, Touched* touched = nullptr);
+  Status UpdateNode(const Touched& touched, Lanes lanes);
+  // Statistics of channel c of the brick's valid interior plane z, scanned from the brick.
+  Result<SampleStats> ScanPlane(uint32_t brick, const NodeKey& key, int c, int64_t z) const;
+  // Writes the lanes' channels of `region` of the brick from the lanes (laid out over src_box);
+  // with `touched`, gathers the statistics of touched->written (a part of region) as well.
+  // Thread-safe for distinct bricks (see InitBrick).
+  Status PutRegion(uint32_t brick, const NodeKey& key, const Box& region, Lanes lanes,
+                   const Box& src_box, Touched* touched = nullptr) const;
+  // Runs fn(i) for i in [0, n) on the workers (or inline).
+  Status ForEach(size_t n, const std::function<Status(size_t)>& fn) const;
 
   std::mutex& BrickLock(uint32_t brick) const { return brick_locks_[brick % kBrickStripes]; }
 
@@ -285,7 +349,9 @@ class Octree {
   std::vector<ChannelStats> stats_;     // nodes_.size() * channels_.
   std::vector<uint32_t> group_parent_;  // Parent node id per group; kFreeGroup when free.
   std::set<uint32_t> free_groups_;
-  std::unordered_map<uint32_t, LeafProgress> progress_;  // Guarded by insert_mu_.
+  std::unordered_map<uint32_t, LeafProgress> progress_;    // Guarded by insert_mu_.
+  std::unordered_map<uint32_t, PlaneTable> plane_tables_;  // Guarded by insert_mu_.
+  WorkerPool* workers_ = nullptr;  // The current insert's pool (guarded by insert_mu_).
 
   mutable std::array<std::mutex, kBrickStripes> brick_locks_;
   ChangeLog changes_;

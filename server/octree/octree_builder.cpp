@@ -1,22 +1,16 @@
 #include "octree/octree_builder.h"
 
 #include <algorithm>
+#include <chrono>
 #include <condition_variable>
-#include <deque>
+#include <exception>
 #include <mutex>
-#include <optional>
+#include <string>
+#include <system_error>
 #include <thread>
 
 namespace octoscope::octree {
 namespace {
-
-// One slab of one channel, converted to the stored type, waiting to be inserted.
-struct ReadySlab {
-  int channel = 0;
-  int64_t z0 = 0;
-  int64_t nz = 0;
-  std::vector<std::byte> stored;
-};
 
 // True when ConvertToStored would copy the bytes unchanged.
 bool IsIdentity(const volume::ValueMap& map) {
@@ -24,6 +18,26 @@ bool IsIdentity(const volume::ValueMap& map) {
 }
 
 }  // namespace
+
+BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, int64_t brick_height,
+                             int64_t brick_depth, int bytes_per_stored_sample, uint64_t ram_bytes) {
+  BuildBudget b;
+  b.slab_bytes = std::min<uint64_t>(ram_bytes / 16, uint64_t{64} << 20);
+  const uint64_t layer = info.PlaneVoxels() * static_cast<uint64_t>(info.channel_count()) *
+                         static_cast<uint64_t>(std::min<int64_t>(brick_depth, info.size[2])) *
+                         static_cast<uint64_t>(bytes_per_stored_sample);
+  if (2 * layer <= ram_bytes / 2) {
+    b.staging_bytes = 2 * layer;
+  } else if (layer <= ram_bytes / 4) {
+    b.staging_bytes = layer;
+  }
+  // Layers staged in scratch files are read back one brick row at a time: that row's buffers.
+  const uint64_t row = layer / static_cast<uint64_t>(std::max<int64_t>(1, info.size[1])) *
+                       static_cast<uint64_t>(std::min<int64_t>(brick_height, info.size[1]));
+  const uint64_t reserved = b.slab_bytes + (b.staging_bytes > 0 ? b.staging_bytes : row);
+  b.page_bytes = ram_bytes > reserved ? ram_bytes - reserved : 0;
+  return b;
+}
 
 int64_t SlabPlanes(const volume::VolumeInfo& info, int64_t brick_depth, int threads,
                    uint64_t slab_budget_bytes) {
@@ -46,29 +60,33 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
     return InvalidArgumentError("octree geometry does not match the source " + info.ToString());
   }
   const int threads = options.threads > 0 ? options.threads : std::max(2, channels);
-  const int64_t nz = SlabPlanes(info, geometry.brick_size()[2], threads, options.slab_budget_bytes);
+  const int64_t nz = options.slab_planes > 0 ? std::min(options.slab_planes, info.size[2])
+                                             : SlabPlanes(info, geometry.brick_size()[2], threads,
+                                                          options.slab_budget_bytes);
   const int64_t slabs_per_channel = (info.size[2] + nz - 1) / nz;
   const int64_t items = slabs_per_channel * channels;
+  const size_t file_bytes = volume::BytesPerSample(info.dtype);
   const size_t stored_bytes = static_cast<size_t>(geometry.bytes_per_sample());
+
+  const int insert_threads =
+      options.insert_threads > 0
+          ? options.insert_threads
+          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  WorkerPool workers(insert_threads);
+  IngestOptions ingest_options;
+  ingest_options.staging_bytes = options.staging_bytes;
+  ingest_options.scratch_dir = options.scratch_dir;
+  ingest_options.workers = &workers;
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<SlabIngest> ingest,
+                        SlabIngest::Create(&octree, ingest_options));
 
   std::mutex mutex;
   std::condition_variable cv;
-  int64_t next_item = 0;          // GUARDED_BY(mutex): next work item to read.
-  std::deque<ReadySlab> ready;    // GUARDED_BY(mutex): read, waiting for insertion.
-  int readers_running = threads;  // GUARDED_BY(mutex)
-  bool stop = false;              // GUARDED_BY(mutex): an error ended the build.
-  Status first_error;             // GUARDED_BY(mutex)
-  const size_t max_ready = static_cast<size_t>(threads);
-  // Slab buffers are recycled: a fresh 10-100 MB buffer costs a page fault per 4 KiB and a
-  // zero fill, more than copying the slab. Bounded by the slabs in flight.
-  std::vector<std::vector<std::byte>> spare;  // GUARDED_BY(mutex)
-  auto take_spare = [&] {
-    std::lock_guard lock(mutex);
-    if (spare.empty()) return std::vector<std::byte>();
-    std::vector<std::byte> buffer = std::move(spare.back());
-    spare.pop_back();
-    return buffer;
-  };
+  int64_t next_item = 0;    // GUARDED_BY(mutex): next work item to read.
+  int64_t items_read = 0;   // GUARDED_BY(mutex)
+  int readers_running = 0;  // GUARDED_BY(mutex)
+  bool stop = false;        // GUARDED_BY(mutex): an error or a cancellation ended the build.
+  Status first_error;       // GUARDED_BY(mutex)
 
   auto fail = [&](Status s) {
     std::lock_guard lock(mutex);
@@ -78,40 +96,49 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
   };
 
   auto reader = [&] {
-    std::vector<std::byte> raw;
+    std::vector<std::byte> raw, stored;
     while (true) {
       int64_t item;
       {
-        std::unique_lock lock(mutex);
+        std::lock_guard lock(mutex);
         if (stop || next_item >= items) break;
+        if (options.stop.stop_requested()) {
+          if (first_error.ok()) first_error = CancelledError("build cancelled");
+          stop = true;
+          cv.notify_all();
+          break;
+        }
         item = next_item++;
       }
-      // z-major: all channels of a slab before the next slab, so files stored plane-interleaved
-      // are read nearly sequentially.
-      ReadySlab slab;
-      slab.channel = static_cast<int>(item % channels);
-      slab.z0 = (item / channels) * nz;
-      slab.nz = std::min(nz, info.size[2] - slab.z0);
-      raw.resize(source.SlabBytes(slab.nz));
-      Status s = source.ReadSlab(slab.channel, slab.z0, slab.nz, raw);
+      const int channel = static_cast<int>(item % channels);
+      const int64_t z0 = (item / channels) * nz;
+      const int64_t depth = std::min(nz, info.size[2] - z0);
+      raw.resize(source.SlabBytes(depth));
+      Status s = source.ReadSlab(channel, z0, depth, raw);
+      if (s.ok()) {
+        std::span<const std::byte> slab = raw;
+        if (!(IsIdentity(maps[channel]) && file_bytes == stored_bytes)) {
+          stored.resize(raw.size() / file_bytes * stored_bytes);
+          volume::ConvertToStored(maps[channel], raw, stored);
+          slab = stored;
+        }
+        s = ingest->Add(channel, z0, depth, slab);
+      }
       if (!s.ok()) {
         fail(std::move(s));
         break;
       }
-      if (IsIdentity(maps[slab.channel]) && volume::BytesPerSample(info.dtype) == stored_bytes) {
-        // Nothing to convert: the slab as read is the stored slab.
-        slab.stored = std::move(raw);
-        raw = take_spare();
-      } else {
-        slab.stored = take_spare();
-        slab.stored.resize(raw.size() / volume::BytesPerSample(info.dtype) * stored_bytes);
-        volume::ConvertToStored(maps[slab.channel], raw, slab.stored);
-      }
-      std::unique_lock lock(mutex);
-      cv.wait(lock, [&] { return stop || ready.size() < max_ready; });
-      if (stop) break;
-      ready.push_back(std::move(slab));
+      std::lock_guard lock(mutex);
+      ++items_read;
       cv.notify_all();
+    }
+  };
+  // Exceptions (allocation failures) must not cross the thread boundary.
+  auto guarded_reader = [&] {
+    try {
+      reader();
+    } catch (const std::exception& e) {
+      fail(ResourceExhaustedError(std::string("reading a slab: ") + e.what()));
     }
     std::lock_guard lock(mutex);
     --readers_running;
@@ -121,56 +148,74 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
   std::vector<std::thread> pool;
   pool.reserve(threads);
   for (int t = 0; t < threads; ++t) {
-    pool.emplace_back([&] {
-      // Exceptions (allocation failures) must not cross the thread boundary.
-      try {
-        reader();
-      } catch (const std::exception& e) {
-        fail(ResourceExhaustedError(std::string("reading a slab: ") + e.what()));
-        std::lock_guard lock(mutex);
-        --readers_running;
-        cv.notify_all();
-      }
-    });
+    {
+      std::lock_guard lock(mutex);
+      ++readers_running;
+    }
+    try {
+      pool.emplace_back(guarded_reader);
+    } catch (const std::system_error&) {
+      std::lock_guard lock(mutex);
+      --readers_running;
+      break;  // Run with the readers that started (or none: see below).
+    }
+  }
+  if (pool.empty()) {
+    // Not even one thread: read on this one.
+    {
+      std::lock_guard lock(mutex);
+      ++readers_running;
+    }
+    guarded_reader();
   }
 
   BuildProgress progress;
   progress.planes_total = static_cast<uint64_t>(info.size[2]) * channels;
-  const uint64_t plane_file_bytes = info.PlaneVoxels() * volume::BytesPerSample(info.dtype);
-  Status status;
-  while (true) {
-    ReadySlab slab;
-    {
-      std::unique_lock lock(mutex);
-      cv.wait(lock, [&] { return !ready.empty() || readers_running == 0 || stop; });
-      if (stop) break;
-      if (ready.empty()) break;  // All readers finished and everything is inserted.
-      slab = std::move(ready.front());
-      ready.pop_front();
-      cv.notify_all();
+  const uint64_t plane_file_bytes = info.PlaneVoxels() * file_bytes;
+  auto report = [&](int64_t read) {
+    const IngestProgress ip = ingest->progress();
+    progress.planes_done = ip.planes_inserted;
+    progress.planes_read = static_cast<uint64_t>(std::min(read * nz, info.size[2])) * channels;
+    progress.planes_read = std::min(progress.planes_read, progress.planes_total);
+    progress.source_bytes_done = ip.planes_inserted * plane_file_bytes;
+    if (!options.progress) return;
+    try {
+      options.progress(progress);
+    } catch (const std::exception& e) {
+      fail(InternalError(std::string("build progress callback: ") + e.what()));
+    } catch (...) {
+      fail(InternalError("build progress callback threw"));
     }
-    Box box{{0, 0, slab.z0}, {info.size[0], info.size[1], slab.z0 + slab.nz}};
-    status = octree.Insert(slab.channel, box, slab.stored);
-    if (!status.ok()) {
-      fail(status);
-      break;
-    }
-    {
-      std::lock_guard lock(mutex);
-      spare.push_back(std::move(slab.stored));
-    }
-    progress.planes_done += static_cast<uint64_t>(slab.nz);
-    progress.source_bytes_done += static_cast<uint64_t>(slab.nz) * plane_file_bytes;
-    if (options.progress) options.progress(progress);
-  }
+  };
   {
-    std::lock_guard lock(mutex);
-    stop = true;
-    cv.notify_all();
+    std::unique_lock lock(mutex);
+    int64_t reported = -1;
+    while (readers_running > 0) {
+      cv.wait_for(lock, std::chrono::milliseconds(100));
+      if (options.stop.stop_requested() && !stop) {
+        if (first_error.ok()) first_error = CancelledError("build cancelled");
+        stop = true;
+      }
+      if (items_read != reported) {
+        reported = items_read;
+        lock.unlock();
+        report(reported);
+        lock.lock();
+      }
+    }
   }
   for (std::thread& t : pool) t.join();
-  std::lock_guard lock(mutex);
-  return first_error;
+  Status status;
+  {
+    std::lock_guard lock(mutex);
+    status = first_error;
+  }
+  if (status.ok()) status = ingest->Flush();
+  if (status.ok() && !ingest->complete()) {
+    status = InternalError("build ended with planes missing from the octree");
+  }
+  if (status.ok()) report(items);
+  return status;
 }
 
 }  // namespace octoscope::octree

@@ -46,7 +46,7 @@ Result<SourceIdentity> ComputeSourceIdentity(const std::filesystem::path& input)
 struct CacheParams {
   volume::VolumeInfo info;  // Size, channels, dtype, series, time.
   Vec3 brick_size = kDefaultBrickSize;
-  double threshold = 0.05;
+  double threshold = 0.0;  // 0 = lossless.
 };
 
 // What a build derives from the data itself (it may need a pass over every voxel): how file

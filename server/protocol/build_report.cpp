@@ -1,5 +1,6 @@
 #include "protocol/build_report.h"
 
+#include <algorithm>
 #include <nlohmann/json.hpp>
 
 namespace octoscope::protocol {
@@ -13,6 +14,13 @@ std::string BuildReportJson(const BuildReport& r) {
   j["input_bytes"] = r.input_bytes;
   j["pool_ratio"] = r.input_bytes ? static_cast<double>(r.stats.pool_bytes) / r.input_bytes : 0.0;
   j["levels"] = r.levels;
+  j["brick"] = r.brick_size;
+  j["threshold"] = r.threshold;
+  j["lossless"] =
+      std::all_of(r.pruning_error.begin(), r.pruning_error.end(), [](double e) { return e == 0; });
+  j["pruning_error"] = r.pruning_error;
+  j["pages_read_mb"] = r.pages_read_mb;
+  j["pages_written_mb"] = r.pages_written_mb;
   j["seconds"] = r.seconds;
   j["mb_per_s"] = r.mb_per_s;
   j["peak_rss_mb"] = r.peak_rss_mb;

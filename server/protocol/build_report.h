@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "octree/octree.h"
 
@@ -22,6 +23,13 @@ struct BuildReport {
   std::string rebuild_reason;  // Why it was built ("" when reused).
   int levels = 0;
   std::string cache_dir;
+  double threshold = 0;  // Homogeneity threshold (0 = lossless).
+  // Per channel, the largest |voxel - shown value| pruning introduced, in the file's own units
+  // (Octree::PruningError through the channel's value map); all 0 when lossless.
+  std::vector<double> pruning_error;
+  std::vector<int64_t> brick_size;  // The brick size the cache uses (x, y, z).
+  double pages_read_mb = 0;         // Brick pages read back from the pool file (re-reads).
+  double pages_written_mb = 0;      // Brick pages written to the pool file.
 };
 
 std::string BuildReportJson(const BuildReport& report);

@@ -128,7 +128,7 @@ TEST_F(BuildCommandTest, AsynchronousSigkillNeverLeavesACompleteLookingCache) {
 
 TEST_F(BuildCommandTest, ChangedSourceParametersOrManifestRebuild) {
   ASSERT_EQ(Build(dir_ / "cache").exit_code, 0);
-  EXPECT_EQ(Parse(Build(dir_ / "cache", "--threshold 0"))["rebuild_reason"], "parameters changed");
+  EXPECT_EQ(Parse(Build(dir_ / "cache", "--threshold 0.05"))["rebuild_reason"], "parameters changed");
   { std::ofstream(dir_ / "cache" / "MANIFEST", std::ios::app) << "bogus line\n"; }
   auto j = Parse(Build(dir_ / "cache", "--threshold 0"));
   EXPECT_EQ(j["reused"], false);
@@ -137,7 +137,7 @@ TEST_F(BuildCommandTest, ChangedSourceParametersOrManifestRebuild) {
   ASSERT_EQ(RunOctoscope("demo --out " + Quote(dir_) + " --size 70,52,40 --channels 2 --seed 9")
                 .exit_code,
             0);
-  EXPECT_EQ(Parse(Build(dir_ / "cache", "--threshold 0"))["rebuild_reason"], "source changed");
+  EXPECT_EQ(Parse(Build(dir_ / "cache", "--threshold 0.05"))["rebuild_reason"], "source changed");
 }
 
 TEST_F(BuildCommandTest, VolumeFourTimesTheBudgetStaysWithinBudgetPlusOverhead) {

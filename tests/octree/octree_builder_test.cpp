@@ -6,6 +6,9 @@
 #include <gtest/gtest.h>
 
 #include <cstring>
+#include <filesystem>
+#include <stdexcept>
+#include <stop_token>
 #include <vector>
 
 #include "io/volume_source.h"
@@ -49,7 +52,8 @@ class MemorySource : public io::VolumeSource {
   volume::VolumeInfo info_;
 };
 
-void ExpectBuildMatchesDirectInserts(volume::DataType dtype, uint64_t slab_budget, int threads) {
+void ExpectBuildMatchesDirectInserts(volume::DataType dtype, uint64_t slab_budget, int threads,
+                                     int64_t slab_planes = 0, uint64_t staging = 64 << 20) {
   const Vec3 size{30, 20, 23};
   const SourceVolume src = MakePatternVolume(size, 2, 2, 9);
   BrickGeometry::Params params;
@@ -73,6 +77,9 @@ void ExpectBuildMatchesDirectInserts(volume::DataType dtype, uint64_t slab_budge
   BuildOptions build_options;
   build_options.threads = threads;
   build_options.slab_budget_bytes = slab_budget;
+  build_options.slab_planes = slab_planes;
+  build_options.staging_bytes = staging;
+  build_options.scratch_dir = std::filesystem::temp_directory_path();
   uint64_t last_planes = 0;
   build_options.progress = [&](const BuildProgress& p) { last_planes = p.planes_done; };
   Status st = BuildOctree(source, maps, *built.tree, build_options);
@@ -93,6 +100,56 @@ TEST(OctreeBuilderTest, ConvertedSlabsGiveTheSameTree) {
   // 2-plane slabs: each slab splits the bricks' z range.
   const uint64_t plane_bytes = 30 * 20 * 2;
   ExpectBuildMatchesDirectInserts(volume::DataType::kInt16, 2 * 2 * 2 * plane_bytes, 2);
+}
+
+TEST(OctreeBuilderTest, PlaneByPlaneReadsAndScratchStagingGiveTheSameTree) {
+  // One plane per read, as a live acquisition delivers them; staging too small for a layer, so
+  // every layer goes through a scratch file and is inserted brick row by brick row.
+  ExpectBuildMatchesDirectInserts(volume::DataType::kUint16, 1 << 20, 3, 1, 0);
+}
+
+// A build stopped by its stop token or by a throwing progress callback returns an error, joins
+// its threads and leaves a consistent tree.
+TEST(OctreeBuilderTest, CancellationAndThrowingCallbacksEndTheBuildCleanly) {
+  const Vec3 size{30, 20, 64};
+  const SourceVolume src = MakePatternVolume(size, 2, 2, 9);
+  MemorySource source(src, volume::DataType::kUint16);
+  const std::vector<volume::ValueMap> maps(2, volume::FixedValueMap(volume::DataType::kUint16));
+  OctreeOptions options;
+  options.brick_size = {8, 8, 4};
+  const auto params = testing::Params(size, options.brick_size, 2, 2);
+  {
+    TreeFixture f = TreeFixture::Make(params, options);
+    std::stop_source stop;
+    BuildOptions b;
+    b.slab_planes = 1;
+    b.stop = stop.get_token();
+    stop.request_stop();  // Before anything is read.
+    Status st = BuildOctree(source, maps, *f.tree, b);
+    EXPECT_EQ(st.code(), StatusCode::kCancelled) << st.ToString();
+  }
+  {
+    TreeFixture f = TreeFixture::Make(params, options);
+    std::stop_source stop;
+    BuildOptions b;
+    b.slab_planes = 1;
+    b.stop = stop.get_token();
+    b.progress = [&](const BuildProgress& p) {
+      if (p.planes_read > 0) stop.request_stop();
+    };
+    Status st = BuildOctree(source, maps, *f.tree, b);
+    EXPECT_EQ(st.code(), StatusCode::kCancelled) << st.ToString();
+    EXPECT_FALSE(f.tree->GetNode(f.tree->geometry().RootKey())->complete);
+  }
+  {
+    TreeFixture f = TreeFixture::Make(params, options);
+    BuildOptions b;
+    b.slab_planes = 1;
+    b.progress = [](const BuildProgress&) { throw std::runtime_error("callback failed"); };
+    Status st = BuildOctree(source, maps, *f.tree, b);
+    EXPECT_EQ(st.code(), StatusCode::kInternal) << st.ToString();
+    EXPECT_NE(st.message().find("callback failed"), std::string::npos);
+  }
 }
 
 TEST(OctreeBuilderTest, SlabPlanesPrefersDivisorsOfTheBrickDepth) {
