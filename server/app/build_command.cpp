@@ -74,7 +74,10 @@ int RunBuild(std::span<const std::string> args) {
       "JSON line at the end (fields in docs/cli.md).");
   flags.SetPositionals("INPUT", 1, 1);
   flags.AddValue("cache", "DIR", "cache directory (created if missing)");
-  flags.AddValue("brick", "N|X,Y,Z", "brick size in voxels, even", "64");
+  flags.AddValue("brick", "N|X,Y,Z",
+                 "brick size in voxels, even (auto: <= 64 per axis, the least padding;\n"
+                 "                            thin stacks get shallow bricks)",
+                 "auto");
   flags.AddValue(
       "threshold", "F",
       "LOSSY pruning: also replace bricks whose values vary by at most F times the channel's\n"
@@ -93,8 +96,8 @@ int RunBuild(std::span<const std::string> args) {
   }
   auto cache_dir = flags.Get("cache");
   if (!cache_dir || cache_dir->empty()) return Usage("--cache DIR is required", flags);
-  octree::Vec3 brick = octree::kDefaultBrickSize;
-  if (auto text = flags.Get("brick")) {
+  octree::Vec3 brick{0, 0, 0};  // Auto.
+  if (auto text = flags.Get("brick"); text && *text != "auto") {
     auto parsed = ParseBrick(*text);
     if (!parsed.ok()) return Usage(parsed.status().message(), flags);
     brick = *parsed;
@@ -118,6 +121,7 @@ int RunBuild(std::span<const std::string> args) {
   auto identity = octree::ComputeSourceIdentity(input);
   if (!identity.ok()) return Fail(input, identity.status());
 
+  brick = BrickSizeFor(info, brick);
   const uint64_t ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
   const octree::BuildBudget budget = BuildBudgetFor(info, brick, ram_bytes);
 

@@ -49,6 +49,9 @@ int ReportBadInput(const char* command, const std::string& input, const Status& 
 // a fraction of the data's range, or the type is wider) one statistics pass over the data.
 Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold);
 
+// `requested`, or the volume's automatic brick size when it is {0, 0, 0}.
+octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& requested);
+
 // The build budget split (octree::SplitBuildBudget) for `info` in bricks of `brick_size`.
 octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
                                    uint64_t ram_bytes);
@@ -74,7 +77,7 @@ struct OctreeLoadOptions {
   io::OpenOptions open;             // For a scan INPUT.
   std::filesystem::path cache_dir;  // Empty: build in RAM.
   uint64_t ram_bytes = uint64_t{1} << 30;
-  octree::Vec3 brick_size = octree::kDefaultBrickSize;
+  octree::Vec3 brick_size{0, 0, 0};  // {0, 0, 0}: octree::AutoBrickSize of the volume.
   double threshold = 0.0;  // Homogeneity threshold (fraction of the value range); 0 = lossless.
   int threads = 0;         // Reader threads; 0 = one per channel, at least 2.
   bool progress = true;    // Progress bars on stderr while building.
