@@ -42,9 +42,6 @@ class RawFile final : public PositionedFile {
   Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override {
     return ReadFully(fd_, offset, out, name_);
   }
-  void WillNeed(uint64_t offset, uint64_t length) const override {
-    AdviseWillNeed(fd_, offset, length);
-  }
 
  private:
   const int fd_;

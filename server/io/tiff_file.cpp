@@ -949,10 +949,6 @@ std::optional<uint64_t> TiffFile::StoredPlaneOffset(int index, int sample) {
   return it->second;
 }
 
-void TiffFile::WillNeed(uint64_t offset, uint64_t length) const {
-  AdviseWillNeed(impl_->fd, offset, length);
-}
-
 Result<std::string> TiffFile::Description(int index, size_t max_bytes) {
   const std::string name = path_.string();
   if (index < 0 || index >= ifd_count()) {

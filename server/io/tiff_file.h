@@ -129,7 +129,6 @@ class TiffFile final : public PositionedFile {
   // inside the file as sized at Open, or when the file has shrunk since ("the file is truncated").
   // Thread-safe without taking the decoding lock (positioned reads).
   Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override;
-  void WillNeed(uint64_t offset, uint64_t length) const override;
 
  private:
   struct Impl;

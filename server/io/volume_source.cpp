@@ -1,7 +1,5 @@
 #include "io/volume_source.h"
 
-#include <fcntl.h>
-
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -59,16 +57,6 @@ Status CheckSlabRequest(const volume::VolumeInfo& info, int channel, int64_t z0,
                                 " bytes, the slab needs " + std::to_string(want));
   }
   return Status::Ok();
-}
-
-void AdviseWillNeed(int fd, uint64_t offset, uint64_t length) {
-  if (length == 0 || offset > static_cast<uint64_t>(INT64_MAX) ||
-      length > static_cast<uint64_t>(INT64_MAX) - offset) {
-    return;
-  }
-  // Best effort: the hint only starts reads early, so its result is ignored.
-  (void)::posix_fadvise(fd, static_cast<off_t>(offset), static_cast<off_t>(length),
-                        POSIX_FADV_WILLNEED);
 }
 
 }  // namespace octoscope::io

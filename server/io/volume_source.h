@@ -36,9 +36,6 @@ class PositionedFile {
   virtual ~PositionedFile() = default;
   // Reads out.size() bytes at `offset`. Errors name the file.
   virtual Status ReadBytes(uint64_t offset, std::span<std::byte> out) const = 0;
-  // Hints that bytes [offset, offset + length) will be read soon, so the kernel starts reading
-  // them in while the caller works on earlier ones. Best effort; never fails.
-  virtual void WillNeed(uint64_t offset, uint64_t length) const = 0;
 };
 
 // A plane stored as is: bytes [offset, offset + SlabBytes(1)) of `file` are exactly what
@@ -47,9 +44,6 @@ struct StoredPlane {
   std::shared_ptr<const PositionedFile> file;  // Keeps the file open while the caller reads.
   uint64_t offset = 0;
 };
-
-// posix_fadvise(WILLNEED) on an open descriptor: the PositionedFile::WillNeed of the readers.
-void AdviseWillNeed(int fd, uint64_t offset, uint64_t length);
 
 class VolumeSource {
  public:

@@ -193,26 +193,14 @@ Result<VolumeStats> ComputeDirectStats(VolumeSource& source, const StatsOptions&
   // in w.status; only the progress callback, called when `report`, may throw.
   auto run = [&](Worker& w, uint64_t begin, uint64_t end, bool report) {
     std::vector<std::byte> buffer;  // One piece of a stored plane, or a whole other plane.
-    auto plane_at = [&](uint64_t i) {
-      return std::pair<int, int64_t>(static_cast<int>(i % static_cast<uint64_t>(channels)),
-                                     static_cast<int64_t>(i / static_cast<uint64_t>(channels)));
-    };
-    std::optional<StoredPlane> next;  // Plane i + 1, located (and its read-ahead started) early.
     for (uint64_t i = begin; i < end && !stop.load(std::memory_order_relaxed); ++i) {
       try {
         if (w.acc.empty()) w.acc.assign(static_cast<size_t>(channels), Accumulator{});
-        const auto [c, z] = plane_at(i);
-        std::optional<StoredPlane> stored =
-            i == begin ? source.FindStoredPlane(c, z) : std::move(next);
-        next.reset();
-        if (i + 1 < end) {
-          // Ask the kernel for the next plane now, so a file not yet in the page cache streams in
-          // while this one is summed (threads share one descriptor: its read-ahead alone would
-          // not see their sequential runs).
-          const auto [next_c, next_z] = plane_at(i + 1);
-          next = source.FindStoredPlane(next_c, next_z);
-          if (next) next->file->WillNeed(next->offset, plane_bytes);
-        }
+        const int c = static_cast<int>(i % static_cast<uint64_t>(channels));
+        const int64_t z = static_cast<int64_t>(i / static_cast<uint64_t>(channels));
+        // (The kernel's read-ahead follows each thread's forward run through the shared
+        // descriptor; an explicit fadvise(WILLNEED) per plane measured no faster, cold or warm.)
+        std::optional<StoredPlane> stored = source.FindStoredPlane(c, z);
         if (stored) {
           buffer.resize(static_cast<size_t>(std::min(piece_bytes, plane_bytes)));
           for (uint64_t done = 0; done < plane_bytes && w.status.ok();) {
