@@ -21,7 +21,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr const char* kManifestFile = "MANIFEST";  // octree/octree_cache.h.
+// The files of a cache directory (octree/octree_cache.h).
+constexpr const char* kManifestFile = "MANIFEST";
+constexpr const char* kBuildingFile = "BUILDING";
+constexpr const char* kLockFile = "LOCK";
 constexpr uint64_t kMaxManifestBytes = uint64_t{1} << 20;
 
 void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info) {
@@ -127,10 +130,25 @@ Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double thre
 
 bool IsCacheDirectory(const fs::path& path) {
   std::error_code ec;
-  return fs::is_directory(path, ec) && fs::is_regular_file(path / kManifestFile, ec);
+  if (!fs::is_directory(path, ec)) return false;
+  // A cache being built (or whose build was killed) has no MANIFEST yet, but its markers.
+  for (const char* name : {kManifestFile, kBuildingFile, kLockFile}) {
+    if (fs::is_regular_file(path / name, ec)) return true;
+  }
+  return false;
 }
 
 Result<std::unique_ptr<LoadedOctree>> OpenCacheDirectory(const fs::path& dir, uint64_t ram_bytes) {
+  // While another process builds into the directory its MANIFEST is missing: say that, not "no
+  // MANIFEST". (OctreeCache::Open below takes its own lock; this one is only the first look.)
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<octree::CacheLock> first_look,
+                        octree::CacheLock::Acquire(dir, octree::CacheLock::Mode::kShared));
+  std::error_code ec;
+  if (!fs::exists(dir / kManifestFile, ec)) {
+    return CorruptError(dir.string() +
+                        ": the cache is incomplete (its build was interrupted); rebuild it from "
+                        "the scan (octoscope build SCAN --cache DIR)");
+  }
   OCTO_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(dir / kManifestFile, kMaxManifestBytes));
   auto manifest = octree::CacheManifest::Parse(text);
   if (!manifest.ok()) {

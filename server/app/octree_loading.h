@@ -1,8 +1,9 @@
 // Octree loading for the subcommands that need a built octree (`build`, `render`): the value
 // mapping a build derives from the data, the default RAM budget, and the three ways to get an
 // octree for an INPUT:
-//  1. INPUT is a cache directory (it holds a MANIFEST, octree/octree_cache.h): it is opened as it
-//     is, with the scan and parameters its manifest records (the scan itself is not needed);
+//  1. INPUT is a cache directory (it holds a MANIFEST, or the marks of a build: see
+//     IsCacheDirectory): it is opened as it is, with the scan and parameters its manifest records
+//     (the scan itself is not needed); one another process is building is refused (kUnavailable);
 //  2. INPUT is a scan and a cache directory is given: OctreeCache reuses a complete matching
 //     cache there or builds into it (durable, reused by the next run);
 //  3. INPUT is a scan and no cache directory: the octree is built in RAM
@@ -70,7 +71,8 @@ struct BuildRun {
 Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
                          octree::Octree& tree, const BuildRun& run);
 
-// True when `path` is a directory holding a cache MANIFEST.
+// True when `path` is a directory holding a cache MANIFEST, or the BUILDING or LOCK file of a
+// cache being built (or whose build was interrupted).
 bool IsCacheDirectory(const std::filesystem::path& path);
 
 struct OctreeLoadOptions {

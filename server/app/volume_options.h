@@ -15,7 +15,8 @@ namespace octoscope::app {
 // Declares --series, --time and --spacing on `flags`.
 void AddVolumeFlags(Flags& flags);
 
-// Builds the OpenOptions from parsed flags. Errors name the malformed flag.
+// Builds the OpenOptions from parsed flags. Errors name the malformed flag. The input's warnings
+// (VolumeInfo::warnings) are printed to stderr as "<command>: warning: <text>" when it is opened.
 Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags);
 
 }  // namespace octoscope::app

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
+#include <string>
 
 #include "io/raw_layout.h"
 #include "util/result.h"
@@ -27,6 +28,10 @@ struct OpenOptions {
   // Parses an Octoscope JSON raw sidecar. Set by app/ (protocol/ owns JSON); when unset, JSON
   // sidecars are reported as unsupported.
   std::function<Result<RawLayout>(const std::filesystem::path& sidecar)> load_raw_sidecar;
+  // Called by OpenVolume once per warning of the volume it opened (VolumeInfo::warnings: what
+  // the reader had to guess or ignore), right after opening, so a command can show it before a
+  // long read. Unset: the warnings are only in info().
+  std::function<void(const std::string& warning)> on_warning;
 };
 
 }  // namespace octoscope::io

@@ -40,9 +40,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar
   return source;
 }
 
-}  // namespace
-
-Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
+Result<std::unique_ptr<VolumeSource>> OpenAny(const fs::path& path, const OpenOptions& options) {
   std::error_code ec;
   fs::file_status status = fs::status(path, ec);
   if (ec || !fs::exists(status)) return NotFoundError(path.string() + ": no such file or folder");
@@ -77,6 +75,16 @@ Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const Ope
   if (fs::file_size(path, ec) == 0 && !ec) return CorruptError(path.string() + ": empty file");
   return UnsupportedError(path.string() +
                           ": not a TIFF/OME-TIFF, and no .json or .vvd sidecar describes it");
+}
+
+}  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<VolumeSource> source, OpenAny(path, options));
+  if (options.on_warning) {
+    for (const std::string& warning : source->info().warnings) options.on_warning(warning);
+  }
+  return source;
 }
 
 }  // namespace octoscope::io

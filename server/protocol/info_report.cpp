@@ -45,6 +45,7 @@ std::string InfoReportJson(const volume::VolumeInfo& info,
   j["series_count"] = info.series_count;
   j["time"] = info.time;
   j["time_points"] = info.time_points;
+  j["warnings"] = info.warnings;
   if (stats) {
     nlohmann::json mins = nlohmann::json::array(), maxs = nlohmann::json::array(),
                    means = nlohmann::json::array(), nans = nlohmann::json::array();

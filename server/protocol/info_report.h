@@ -15,7 +15,8 @@ namespace octoscope::protocol {
 
 // One-line JSON object: format, size [x,y,z], channels, channel_names, channel_colors, dtype,
 // stored_dtype, spacing [x,y,z] (µm, null where unknown), bytes, series, series_count, time,
-// time_points; with stats also min, max, mean (one entry per channel) and nan_count.
+// time_points, warnings (strings, [] when none); with stats also min, max, mean (one entry per
+// channel) and nan_count.
 std::string InfoReportJson(const volume::VolumeInfo& info,
                            const std::optional<io::VolumeStats>& stats);
 
