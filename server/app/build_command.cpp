@@ -168,7 +168,11 @@ int RunBuild(std::span<const std::string> args) {
     report.pruning_error.push_back(error[c] * (*cache)->mapping().value_maps[c].scale);
   }
   const paging::PageCacheStats pages = (*cache)->page_cache().stats();
-  report.pages_read_mb = static_cast<double>(pages.bytes_read) / 1e6;
+  const uint64_t first_loads =
+      (*cache)->page_cache().store()->page_count() * (*cache)->page_cache().page_bytes();
+  report.pages_reread_mb =
+      static_cast<double>(pages.bytes_read > first_loads ? pages.bytes_read - first_loads : 0) /
+      1e6;
   report.pages_written_mb = static_cast<double>(pages.bytes_written) / 1e6;
   const octree::Vec3 used = (*cache)->octree().geometry().brick_size();
   report.brick_size.assign(used.begin(), used.end());
