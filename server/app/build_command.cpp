@@ -134,6 +134,15 @@ int RunBuild(std::span<const std::string> args) {
   if (!cache.ok()) return Fail(input, cache.status());
 
   if (!(*cache)->reused()) {
+    if (budget.page_bytes < budget.working_set_bytes) {
+      std::fprintf(stderr,
+                   "%s: warning: --ram-mb %lld leaves %llu MiB for brick pages, less than "
+                   "construction's working set of about %llu MiB (one brick layer and its "
+                   "parents): pages will be written and read back (same octree, slower)\n",
+                   kCommand, static_cast<long long>(*ram_mb),
+                   static_cast<unsigned long long>(budget.page_bytes >> 20),
+                   static_cast<unsigned long long>(budget.working_set_bytes >> 20));
+    }
     const int64_t kill_after = TestKillAfterPlanes();
     BuildRun run;
     run.budget = budget;

@@ -43,7 +43,7 @@ octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& re
 octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
                                    uint64_t ram_bytes) {
   const volume::DataType stored = volume::StoredTypeFor(info.dtype);
-  return octree::SplitBuildBudget(info, brick_size[1], brick_size[2],
+  return octree::SplitBuildBudget(info, brick_size,
                                   static_cast<int>(volume::BytesPerSample(stored)), ram_bytes);
 }
 
