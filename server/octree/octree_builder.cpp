@@ -223,7 +223,11 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
   if (status.ok() && !ingest->complete()) {
     status = InternalError("build ended with planes missing from the octree");
   }
-  if (status.ok()) report(items);
+  if (status.ok()) {
+    report(items);  // A callback that throws now still fails the build.
+    std::lock_guard lock(mutex);
+    status = first_error;
+  }
   return status;
 }
 
