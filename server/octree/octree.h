@@ -51,10 +51,11 @@
 // Thread safety: Insert may be called from several threads at once (typically one builder thread
 // per channel); inserts are serialised internally by one mutex (the paper's per-channel
 // parallelism is not exploited: steps 2 and 3 of one channel read bricks other channels'
-// pruning could drop). GetNode, ReadBrick, stats, DrainChanges, Save and Flush may be called at
+// pruning could drop). GetNode, ReadBrick, stats, SubscribeChanges, Save and Flush may be called at
 // any time from any thread: the node table is guarded by a shared_mutex (readers shared, the
 // inserting thread exclusive for each mutation, never while holding a page pin), brick bytes by
-// striped mutexes, so a reader always sees a consistent node and an untorn brick.
+// striped mutexes, so a reader always sees a consistent node and an untorn brick. Each change-log
+// event is appended after its change is visible to readers (as ChangeLog requires).
 #ifndef OCTOSCOPE_OCTREE_OCTREE_H_
 #define OCTOSCOPE_OCTREE_OCTREE_H_
 
@@ -170,7 +171,12 @@ class Octree {
   // a page load (PageCache::Pin).
   Status ReadBrick(uint32_t id, std::span<std::byte> out) const;
 
-  std::vector<NodeChange> DrainChanges() { return changes_.Drain(); }
+  // A new consumer of the change log (change_log.h): it reports the node changes from now on, or
+  // tells the consumer to resynchronise when it fell more than `max_backlog` events behind. Walk
+  // the tree (GetNode from the root) after subscribing: earlier changes are not in the log.
+  ChangeSubscription SubscribeChanges(size_t max_backlog = kDefaultChangeBacklog) {
+    return changes_.Subscribe(max_backlog);
+  }
   OctreeStats stats() const;  // O(nodes): scans the node table.
 
   // Writes every dirty brick page back and syncs the store (PageCache::Flush).
