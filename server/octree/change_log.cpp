@@ -4,7 +4,6 @@
 #include <atomic>
 #include <limits>
 #include <mutex>
-#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -17,11 +16,9 @@ constexpr uint8_t kDropped = 0xff;
 // Compaction runs once dropped entries are this many and at least half the log: each one then
 // costs O(log size) and removes at least half of it, so appends stay amortised O(1).
 constexpr size_t kMinCompaction = 1024;
-// An empty ring keeps its buffer up to this many entries (a consumer that fell far behind and
-// caught up gives the rest back).
-constexpr size_t kKeptCapacity = 4096;
 constexpr size_t kMinCapacity = 64;
 constexpr uint64_t kNever = std::numeric_limits<uint64_t>::max();
+constexpr uint64_t kNone = std::numeric_limits<uint64_t>::max();  // No retained kUpdated.
 
 }  // namespace
 
@@ -35,8 +32,9 @@ struct ChangeSubscription::Cursor {
 //  * the ring holds log positions [base, head()) in buf, position base at index `first`;
 //  * base == the smallest `next` of the cursors not waiting for a resync (head() when none):
 //    what no subscription still needs is trimmed at once;
-//  * last_update[id] == p  <=>  the entry at p is a kUpdated of id (at most one per id; every
-//    other update of that id still in the ring is kDropped); `dropped` counts kDropped entries;
+//  * last_update[id] == p != kNone  <=>  the entry at p is a kUpdated of id (at most one per id;
+//    every other update of that id still in the ring is kDropped); ids beyond its size have none;
+//  * `dropped` counts kDropped entries;
 //  * active, max_next and overflow_at describe the cursors not waiting for a resync: their count,
 //    largest `next`, and smallest `next + max_backlog` (Refresh()).
 struct ChangeSubscription::Core {
@@ -53,7 +51,9 @@ struct ChangeSubscription::Core {
   size_t size = 0;
   uint64_t base = 0;
   size_t dropped = 0;
-  std::unordered_map<uint32_t, uint64_t> last_update;
+  // Indexed by node id (ids are dense: 8 per child group), so it is a fraction of the tree's own
+  // node table; a flat array keeps the per-append lookup one cached load, no allocation.
+  std::vector<uint64_t> last_update;
   size_t active = 0;
   uint64_t max_next = 0;
   uint64_t overflow_at = kNever;
@@ -93,17 +93,17 @@ struct ChangeSubscription::Core {
       if (e.kind == kDropped) {
         --dropped;
       } else if (e.kind == static_cast<uint8_t>(NodeChangeKind::kUpdated)) {
-        last_update.erase(e.node);  // The id's one retained update: the index pointed here.
+        last_update[e.node] = kNone;  // The id's one retained update: the index pointed here.
       }
       first = (first + 1) & (buf.size() - 1);
       --size;
       ++base;
     }
-    // Give memory back when nothing is retained: all of it with no up-to-date subscription, a
-    // large buffer otherwise.
-    if (size == 0 && (active == 0 || buf.size() > kKeptCapacity)) {
+    // With no up-to-date subscription nothing is retained: give all memory back. (Otherwise the
+    // buffers stay for the next window; they are bounded by max_backlog and the node ids.)
+    if (active == 0) {
       std::vector<Entry>().swap(buf);
-      std::unordered_map<uint32_t, uint64_t>().swap(last_update);
+      std::vector<uint64_t>().swap(last_update);
       first = 0;
     }
   }
@@ -112,15 +112,16 @@ struct ChangeSubscription::Core {
     std::lock_guard<std::mutex> lock(mu);
     if (active == 0) return;  // Only subscriptions waiting for a resync: they need nothing.
     if (kind == NodeChangeKind::kUpdated) {
-      const auto [it, inserted] = last_update.try_emplace(node, head());
-      if (!inserted) {
+      if (node >= last_update.size()) last_update.resize(size_t{node} + 1, kNone);
+      uint64_t& retained = last_update[node];
+      if (retained != kNone) {
         // Unread by every subscription: that entry is read after this change, so it covers it.
-        if (it->second >= max_next) return;
+        if (retained >= max_next) return;
         // Someone read it already: whoever has not reads the new one instead.
-        At(it->second).kind = kDropped;
+        At(retained).kind = kDropped;
         ++dropped;
-        it->second = head();
       }
+      retained = head();
     }
     PushBack(Entry{node, static_cast<uint8_t>(kind)});
     if (head() > overflow_at) {

@@ -31,11 +31,13 @@
 // kDefaultChangeBacklog). When an append would put it further behind, it is marked for
 // resynchronisation: it stops pinning the log, and its next Poll returns `resync = true` (and no
 // events) and moves it to the current head. The consumer then walks the tree again exactly as
-// after subscribing. So the log holds at most max(max_backlog) entries (over the subscriptions not
-// waiting for a resync) plus an index of at most as many retained kUpdated ids, however long a
-// consumer sleeps; entries no subscription still needs are released as soon as the slowest one
-// has read them (or is unsubscribed). With no subscription Append stores nothing (one atomic load,
-// no lock, no allocation); with subscriptions it is amortised O(1).
+// after subscribing. So the log holds at most max(max_backlog) entries of 8 bytes (over the
+// subscriptions not waiting for a resync; the ring allocates at most twice that) plus an index of
+// 8 bytes per node id up to the highest id updated (the tree's own node table takes 12 + 16 C
+// bytes per id), however long a consumer sleeps; entries no subscription still needs are
+// released as soon as the slowest one has read them (or is unsubscribed), and all memory when no
+// subscription is up to date. With no subscription Append stores nothing (one atomic load, no
+// lock, no allocation); with subscriptions it is amortised O(1).
 //
 // Thread safety: Append, Subscribe and the statistics may be called from any thread; each
 // ChangeSubscription may be used (Poll, destroyed) from any ONE thread at a time, concurrently
@@ -66,8 +68,8 @@ struct NodeChange {
 // How far (in log positions) a subscription may fall behind before it must resynchronise. Beyond
 // this many events replaying costs about as much as walking the tree again (one GetNode per event
 // versus one per live node; a 4096^3 volume with 64^3 bricks has at most 299,593 nodes, and
-// pruning usually removes most), and the log stays below ~16 MiB (a ring of at most twice the
-// bound's entries of 8 B, an index of ~40 B per retained kUpdated).
+// pruning usually removes most), and the ring stays below 4 MiB (at most twice the bound's
+// entries of 8 B allocated).
 inline constexpr size_t kDefaultChangeBacklog = size_t{1} << 18;
 
 // What one Poll returns.
@@ -120,7 +122,8 @@ class ChangeLog {
   ChangeLog(const ChangeLog&) = delete;
   ChangeLog& operator=(const ChangeLog&) = delete;
 
-  // Records a change for every subscription (nothing at all when there is none).
+  // Records a change for every subscription (nothing at all when there is none). REQUIRES: `node`
+  // is an id of the tree's node table (the index is as long as the highest updated id).
   void Append(uint32_t node, NodeChangeKind kind);
   // A new subscription at the head. REQUIRES: max_backlog >= 1.
   ChangeSubscription Subscribe(size_t max_backlog = kDefaultChangeBacklog);
