@@ -125,7 +125,7 @@ class ChangeLog {
   // Records a change for every subscription (nothing at all when there is none). REQUIRES: `node`
   // is an id of the tree's node table (the index is as long as the highest updated id).
   void Append(uint32_t node, NodeChangeKind kind);
-  // A new subscription at the head. REQUIRES: max_backlog >= 1.
+  // A new subscription at the head (a max_backlog of 0 counts as 1).
   ChangeSubscription Subscribe(size_t max_backlog = kDefaultChangeBacklog);
 
   // --- Statistics (tests). ---
