@@ -21,7 +21,7 @@
 // page every Pin of a missing page fails at once with kResourceExhausted.
 //
 // I/O: reads (misses) and write-backs run WITHOUT the cache-wide lock, so hits on other pages, and
-// other misses, proceed meanwhile; nothing is allocated or freed under the lock either. Concurrent
+// other misses, proceed meanwhile; no page buffer is allocated or freed under the lock. Concurrent
 // Pins of the same missing page load it once: the later callers wait for that load (and count as
 // hits). A page that fails to load is not cached (each waiter then tries the load itself and
 // reports its own error). A page at or beyond store->page_count() was never written: it is not
@@ -244,12 +244,6 @@ class PageCache {
   // malloc/calloc'ed, so a never-written page can come zeroed from the allocator (fresh memory).
   using Buffer = std::unique_ptr<std::byte[], FreeDeleter>;
 
-  // One page known to the cache. Frames live in table_; a frame with pins > 0 or writing == true
-  // is never erased, so handles and in-flight write-backs may keep raw pointers to it.
-  // State (all fields guarded by mu_):
-  //   loading (buffer == null, pins >= 1: the loader's pin) --read ok--> ready (buffer set)
-  //   loading --read failed--> erased.
-  //   A ready frame may be `writing` (its write-back is in flight with mu_ released).
   struct Frame;
   // A frame's membership in one intrusive list.
   struct Link {
@@ -306,7 +300,6 @@ class PageCache {
   // Updates the write-behind hysteresis; true when the writer should write a page now.
   bool WriteBehindWantedLocked();
   void WriterLoop() noexcept;
-  void WriterStep(std::unique_lock<std::mutex>& lock);
 
   PageStore* const store_;
   const uint64_t page_bytes_;

@@ -176,6 +176,26 @@ TEST(PagePrefetcherTest, AFailedReadIsReportedOnceAndNotRetriedWhileHeld) {
   EXPECT_TRUE(PrefetchSucceeds(prefetcher, cache, 4));
 }
 
+TEST(PagePrefetcherTest, AVictimsFailedWriteBackIsReportedButTheRequestedPageIsNotHeld) {
+  MemoryPageStore inner(kPage);
+  FillStore(inner, 4);
+  FaultInjectingPageStore store(&inner);
+  PageCache cache(&store, kPage);  // One page: loading page 1 must evict page 0.
+  WritePage(cache, 0, 9);
+  store.FailWritesOfPage(0);
+  PagePrefetcher prefetcher;
+  ASSERT_EQ(prefetcher.Request(&cache, 1), Result::kQueued);
+  auto done = Collect(prefetcher, 1);
+  ASSERT_EQ(done.size(), 1u);
+  EXPECT_EQ(done[0].status.code(), StatusCode::kIoError);
+  EXPECT_NE(done[0].status.message().find("page 0"), std::string::npos) << done[0].status.message();
+  EXPECT_TRUE(testing::CachedPageIs(cache, 0, 9));  // The victim kept its data.
+  // Page 1 itself is fine: asking again is allowed and works once the store writes again.
+  store.FailWritesOfPage(std::nullopt);
+  EXPECT_TRUE(PrefetchSucceeds(prefetcher, cache, 1));
+  EXPECT_TRUE(PageIs(*inner.PageContents(0), 0, 9));
+}
+
 TEST(PagePrefetcherTest, ACacheFullOfPinnedPagesGivesNoRoomInsteadOfBlockingTheIoThread) {
   MemoryPageStore store(kPage);
   FillStore(store, 8);
