@@ -191,6 +191,12 @@ class Octree {
   // does not exist or has no brick; kInvalidArgument when out.size() != brick_bytes. May wait for
   // a page load (PageCache::Pin).
   Status ReadBrick(uint32_t id, std::span<std::byte> out) const;
+  // ReadBrick for threads that must never wait for the disk (a render thread): kUnavailable when
+  // the brick's page is not in RAM now (nothing copied; *page, when given, says which page to
+  // prefetch). Other errors as ReadBrick.
+  Status TryReadBrick(uint32_t id, std::span<std::byte> out, uint64_t* page = nullptr) const;
+  // The brick pool's page cache (for prefetching the pages TryReadBrick reports).
+  paging::PageCache* page_cache() const { return cache_; }
 
   // A new consumer of the change log (change_log.h): it reports the node changes from now on, or
   // tells the consumer to resynchronise when it fell more than `max_backlog` events behind. Walk

@@ -28,8 +28,8 @@ struct BuildReport {
   // (Octree::PruningError through the channel's value map); all 0 when lossless.
   std::vector<double> pruning_error;
   std::vector<int64_t> brick_size;  // The brick size the cache uses (x, y, z).
-  // Brick pages read back from the pool file after their first use (every page is loaded once
-  // when its first brick is allocated; anything beyond that is the working set not fitting).
+  // Brick pages read back from the pool file (pages never written are not read: any read is the
+  // working set not fitting the budget).
   double pages_reread_mb = 0;
   double pages_written_mb = 0;  // Brick pages written to the pool file (write-backs).
 };
