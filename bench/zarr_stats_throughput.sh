@@ -123,4 +123,4 @@ printf 'time ratio cat/stats: %.2f   (1 decoding thread: %.2f)   python3-zarr/st
   "$(awk -v a="$cat_med" -v b="$one_med" 'BEGIN {print a / b}')" \
   "$(awk -v a="$py_med" -v b="$stats_med" 'BEGIN {print a / b}')"
 printf 'max |error| of min/max/mean vs generator: %s\n' "$error"
-printf 'load average: %s\n' "$(cut -d' ' -f1-3 /proc/loadavg)"
+printf 'load average: %s\n' "$(loadavg)"

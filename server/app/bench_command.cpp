@@ -746,8 +746,9 @@ int RunBenchRender(std::span<const std::string> args) {
                  "256; 24 with --quick");
   flags.AddValue("reference-step", "S", "step of the reference images, voxels", "0.5");
   flags.AddValue("brick", "N", "octree brick size, even", "64; 16 with --quick");
-  flags.AddValue("threshold", "F", "homogeneity threshold (fraction of each channel's range)",
-                 "0.05");
+  flags.AddValue("threshold", "F",
+                 "LOSSY homogeneity threshold (fraction of each channel's range)",
+                 "0: lossless, as octoscope build");
   flags.AddValue("repeats", "N", "frames timed for the headline ratios (median)", "3");
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
   flags.AddSwitch("quick", "a tiny run (seconds): 32^3 demo, 32^2 images, 24^2 references");
@@ -782,7 +783,7 @@ int RunBenchRender(std::span<const std::string> args) {
   auto brick = flags.GetInt("brick", quick ? 16 : 64, 2, 256);
   if (!brick.ok() || *brick % 2 != 0)
     return Usage("--brick must be an even number in 2..256", flags);
-  auto threshold = flags.GetDouble("threshold", 0.05);
+  auto threshold = flags.GetDouble("threshold", 0.0);
   if (!threshold.ok()) return Usage(threshold.status().message(), flags);
   if (!(*threshold >= 0 && *threshold <= 1)) return Usage("--threshold must be in [0, 1]", flags);
   auto repeats = flags.GetInt("repeats", quick ? 1 : 3, 1, 100);

@@ -74,7 +74,10 @@ int RunBuild(std::span<const std::string> args) {
       "JSON line at the end (fields in docs/cli.md).");
   flags.SetPositionals("INPUT", 1, 1);
   flags.AddValue("cache", "DIR", "cache directory (created if missing)");
-  flags.AddValue("brick", "N|X,Y,Z", "brick size in voxels, even", "64");
+  flags.AddValue("brick", "N|X,Y,Z",
+                 "brick size in voxels, even (auto: <= 64 per axis, the least padding;\n"
+                 "                            thin stacks get shallow bricks)",
+                 "auto");
   flags.AddValue(
       "threshold", "F",
       "LOSSY pruning: also replace bricks whose values vary by at most F times the channel's\n"
@@ -93,8 +96,8 @@ int RunBuild(std::span<const std::string> args) {
   }
   auto cache_dir = flags.Get("cache");
   if (!cache_dir || cache_dir->empty()) return Usage("--cache DIR is required", flags);
-  octree::Vec3 brick = octree::kDefaultBrickSize;
-  if (auto text = flags.Get("brick")) {
+  octree::Vec3 brick{0, 0, 0};  // Auto.
+  if (auto text = flags.Get("brick"); text && *text != "auto") {
     auto parsed = ParseBrick(*text);
     if (!parsed.ok()) return Usage(parsed.status().message(), flags);
     brick = *parsed;
@@ -118,6 +121,7 @@ int RunBuild(std::span<const std::string> args) {
   auto identity = octree::ComputeSourceIdentity(input);
   if (!identity.ok()) return Fail(input, identity.status());
 
+  brick = BrickSizeFor(info, brick);
   const uint64_t ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
   const octree::BuildBudget budget = BuildBudgetFor(info, brick, ram_bytes);
 
@@ -130,6 +134,15 @@ int RunBuild(std::span<const std::string> args) {
   if (!cache.ok()) return Fail(input, cache.status());
 
   if (!(*cache)->reused()) {
+    if (budget.page_bytes < budget.working_set_bytes) {
+      std::fprintf(stderr,
+                   "%s: warning: --ram-mb %lld leaves %llu MiB for brick pages, less than "
+                   "construction's working set of about %llu MiB (one brick layer and its "
+                   "parents): pages will be written and read back (same octree, slower)\n",
+                   kCommand, static_cast<long long>(*ram_mb),
+                   static_cast<unsigned long long>(budget.page_bytes >> 20),
+                   static_cast<unsigned long long>(budget.working_set_bytes >> 20));
+    }
     const int64_t kill_after = TestKillAfterPlanes();
     BuildRun run;
     run.budget = budget;
@@ -164,7 +177,9 @@ int RunBuild(std::span<const std::string> args) {
     report.pruning_error.push_back(error[c] * (*cache)->mapping().value_maps[c].scale);
   }
   const paging::PageCacheStats pages = (*cache)->page_cache().stats();
-  report.pages_read_mb = static_cast<double>(pages.bytes_read) / 1e6;
+  // Pages never written before are zero-filled without a read (PageCache): every read is a page
+  // that construction needed again after it had left RAM.
+  report.pages_reread_mb = static_cast<double>(pages.bytes_read) / 1e6;
   report.pages_written_mb = static_cast<double>(pages.bytes_written) / 1e6;
   const octree::Vec3 used = (*cache)->octree().geometry().brick_size();
   report.brick_size.assign(used.begin(), used.end());

@@ -15,9 +15,9 @@ inline constexpr int kExitOk = 0;
 inline constexpr int kExitBadInput = 2;
 inline constexpr int kExitUsage = 64;
 
-int RunInfo(std::span<const std::string> args);   // app/info_command.cpp
-int RunDemo(std::span<const std::string> args);   // app/demo_command.cpp
-int RunBuild(std::span<const std::string> args);  // app/build_command.cpp
+int RunInfo(std::span<const std::string> args);    // app/info_command.cpp
+int RunDemo(std::span<const std::string> args);    // app/demo_command.cpp
+int RunBuild(std::span<const std::string> args);   // app/build_command.cpp
 int RunRender(std::span<const std::string> args);  // app/render_command.cpp
 int RunBench(std::span<const std::string> args);   // app/bench_command.cpp
 

@@ -9,6 +9,12 @@ namespace octoscope::app {
 Flags::Flags(std::string usage, std::string summary)
     : usage_(std::move(usage)), summary_(std::move(summary)) {}
 
+std::string Flags::command() const {
+  const size_t first = usage_.find(' ');
+  if (first == std::string::npos) return usage_;
+  return usage_.substr(0, usage_.find(' ', first + 1));
+}
+
 void Flags::AddValue(std::string name, std::string value_name, std::string help,
                      std::string default_text) {
   order_.push_back(name);

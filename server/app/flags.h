@@ -32,6 +32,9 @@ class Flags {
   // Parses `args` (without the program and subcommand names). "--help"/"-h" sets help_requested().
   Status Parse(std::span<const std::string> args);
 
+  // The command as the usage line names it: its first two words ("octoscope info").
+  std::string command() const;
+
   bool help_requested() const { return help_; }
   std::string Help() const;
 

@@ -21,7 +21,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr const char* kManifestFile = "MANIFEST";  // octree/octree_cache.h.
+// The files of a cache directory (octree/octree_cache.h).
+constexpr const char* kManifestFile = "MANIFEST";
+constexpr const char* kBuildingFile = "BUILDING";
+constexpr const char* kLockFile = "LOCK";
 constexpr uint64_t kMaxManifestBytes = uint64_t{1} << 20;
 
 void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info) {
@@ -32,10 +35,15 @@ void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info
 
 }  // namespace
 
+octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& requested) {
+  if (requested != octree::Vec3{0, 0, 0}) return requested;
+  return octree::AutoBrickSize(octree::Vec3{info.size[0], info.size[1], info.size[2]});
+}
+
 octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
                                    uint64_t ram_bytes) {
   const volume::DataType stored = volume::StoredTypeFor(info.dtype);
-  return octree::SplitBuildBudget(info, brick_size[1], brick_size[2],
+  return octree::SplitBuildBudget(info, brick_size,
                                   static_cast<int>(volume::BytesPerSample(stored)), ram_bytes);
 }
 
@@ -122,10 +130,25 @@ Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double thre
 
 bool IsCacheDirectory(const fs::path& path) {
   std::error_code ec;
-  return fs::is_directory(path, ec) && fs::is_regular_file(path / kManifestFile, ec);
+  if (!fs::is_directory(path, ec)) return false;
+  // A cache being built (or whose build was killed) has no MANIFEST yet, but its markers.
+  for (const char* name : {kManifestFile, kBuildingFile, kLockFile}) {
+    if (fs::is_regular_file(path / name, ec)) return true;
+  }
+  return false;
 }
 
 Result<std::unique_ptr<LoadedOctree>> OpenCacheDirectory(const fs::path& dir, uint64_t ram_bytes) {
+  // While another process builds into the directory its MANIFEST is missing: say that, not "no
+  // MANIFEST". (OctreeCache::Open below takes its own lock; this one is only the first look.)
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<octree::CacheLock> first_look,
+                        octree::CacheLock::Acquire(dir, octree::CacheLock::Mode::kShared));
+  std::error_code ec;
+  if (!fs::exists(dir / kManifestFile, ec)) {
+    return CorruptError(dir.string() +
+                        ": the cache is incomplete (its build was interrupted); rebuild it from "
+                        "the scan (octoscope build SCAN --cache DIR)");
+  }
   OCTO_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(dir / kManifestFile, kMaxManifestBytes));
   auto manifest = octree::CacheManifest::Parse(text);
   if (!manifest.ok()) {
@@ -185,9 +208,9 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
     OCTO_ASSIGN_OR_RETURN(octree::SourceIdentity identity, octree::ComputeSourceIdentity(input));
     octree::CacheParams params;
     params.info = info;
-    params.brick_size = options.brick_size;
+    params.brick_size = BrickSizeFor(info, options.brick_size);
     params.threshold = options.threshold;
-    const octree::BuildBudget budget = BuildBudgetFor(info, options.brick_size, options.ram_bytes);
+    const octree::BuildBudget budget = BuildBudgetFor(info, params.brick_size, options.ram_bytes);
     OCTO_ASSIGN_OR_RETURN(
         loaded->cache,
         octree::OctreeCache::Open(options.cache_dir, identity, params, budget.page_bytes,
@@ -210,8 +233,9 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
   }
 
   // Route 3: in RAM, when the bricks fit the page budget.
-  OCTO_ASSIGN_OR_RETURN(uint64_t pool_bytes, MaxPoolBytes(info, options.brick_size));
-  const octree::BuildBudget budget = BuildBudgetFor(info, options.brick_size, options.ram_bytes);
+  const octree::Vec3 brick_size = BrickSizeFor(info, options.brick_size);
+  OCTO_ASSIGN_OR_RETURN(uint64_t pool_bytes, MaxPoolBytes(info, brick_size));
+  const octree::BuildBudget budget = BuildBudgetFor(info, brick_size, options.ram_bytes);
   const uint64_t page_budget = budget.page_bytes;
   if (pool_bytes > page_budget) {
     return ResourceExhaustedError(
@@ -221,16 +245,15 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
   }
   OCTO_ASSIGN_OR_RETURN(octree::ValueMapping mapping, DeriveMapping(*source, options.threshold));
   octree::OctreeOptions tree_options;
-  tree_options.brick_size = options.brick_size;
+  tree_options.brick_size = brick_size;
   tree_options.homogeneity_threshold = options.threshold;
   tree_options.value_range = mapping.value_range;
   const volume::DataType stored = volume::StoredTypeFor(info.dtype);
   tree_options.bytes_per_sample = static_cast<int>(volume::BytesPerSample(stored));
-  OCTO_ASSIGN_OR_RETURN(
-      octree::BrickGeometry geometry,
-      octree::BrickGeometry::Create({octree::Vec3{info.size[0], info.size[1], info.size[2]},
-                                     options.brick_size, info.channel_count(),
-                                     tree_options.bytes_per_sample}));
+  OCTO_ASSIGN_OR_RETURN(octree::BrickGeometry geometry,
+                        octree::BrickGeometry::Create(
+                            {octree::Vec3{info.size[0], info.size[1], info.size[2]}, brick_size,
+                             info.channel_count(), tree_options.bytes_per_sample}));
   const uint64_t page_bytes = octree::OctreeCache::PageBytesFor(geometry.brick_bytes());
   loaded->memory_store = std::make_unique<paging::MemoryPageStore>(page_bytes);
   // The store holds every page in RAM already; the cache in front of it needs only a few.

@@ -1,8 +1,9 @@
 // Octree loading for the subcommands that need a built octree (`build`, `render`): the value
 // mapping a build derives from the data, the default RAM budget, and the three ways to get an
 // octree for an INPUT:
-//  1. INPUT is a cache directory (it holds a MANIFEST, octree/octree_cache.h): it is opened as it
-//     is, with the scan and parameters its manifest records (the scan itself is not needed);
+//  1. INPUT is a cache directory (it holds a MANIFEST, or the marks of a build: see
+//     IsCacheDirectory): it is opened as it is, with the scan and parameters its manifest records
+//     (the scan itself is not needed); one another process is building is refused (kUnavailable);
 //  2. INPUT is a scan and a cache directory is given: OctreeCache reuses a complete matching
 //     cache there or builds into it (durable, reused by the next run);
 //  3. INPUT is a scan and no cache directory: the octree is built in RAM
@@ -49,6 +50,9 @@ int ReportBadInput(const char* command, const std::string& input, const Status& 
 // a fraction of the data's range, or the type is wider) one statistics pass over the data.
 Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold);
 
+// `requested`, or the volume's automatic brick size when it is {0, 0, 0}.
+octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& requested);
+
 // The build budget split (octree::SplitBuildBudget) for `info` in bricks of `brick_size`.
 octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
                                    uint64_t ram_bytes);
@@ -67,14 +71,15 @@ struct BuildRun {
 Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
                          octree::Octree& tree, const BuildRun& run);
 
-// True when `path` is a directory holding a cache MANIFEST.
+// True when `path` is a directory holding a cache MANIFEST, or the BUILDING or LOCK file of a
+// cache being built (or whose build was interrupted).
 bool IsCacheDirectory(const std::filesystem::path& path);
 
 struct OctreeLoadOptions {
   io::OpenOptions open;             // For a scan INPUT.
   std::filesystem::path cache_dir;  // Empty: build in RAM.
   uint64_t ram_bytes = uint64_t{1} << 30;
-  octree::Vec3 brick_size = octree::kDefaultBrickSize;
+  octree::Vec3 brick_size{0, 0, 0};  // {0, 0, 0}: octree::AutoBrickSize of the volume.
   double threshold = 0.0;  // Homogeneity threshold (fraction of the value range); 0 = lossless.
   int threads = 0;         // Reader threads; 0 = one per channel, at least 2.
   bool progress = true;    // Progress bars on stderr while building.

@@ -178,10 +178,10 @@ Status EncodeAndWrite(const render::RenderImage& image, encode::ImageFormat form
                       const std::string& path) {
   // PNG keeps the alpha channel (straight, as the format requires); JPEG shows the image over
   // black.
-  const encode::Rgba8Image pixels = encode::ToRgba8(
-      image.rgba.data(), image.width, image.height,
-      format == encode::ImageFormat::kPng ? encode::AlphaMode::kStraight
-                                          : encode::AlphaMode::kOverBlack);
+  const encode::Rgba8Image pixels =
+      encode::ToRgba8(image.rgba.data(), image.width, image.height,
+                      format == encode::ImageFormat::kPng ? encode::AlphaMode::kStraight
+                                                          : encode::AlphaMode::kOverBlack);
   OCTO_ASSIGN_OR_RETURN(std::vector<uint8_t> bytes, format == encode::ImageFormat::kPng
                                                         ? encode::EncodePng(pixels)
                                                         : encode::EncodeJpeg(pixels, quality));

@@ -1,6 +1,8 @@
 #include "app/volume_options.h"
 
 #include <cmath>
+#include <cstdio>
+#include <string>
 
 #include "protocol/raw_sidecar.h"
 #include "protocol/zarr_json.h"
@@ -49,6 +51,14 @@ Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags) {
       options.spacing_um[a] = *v;
     }
   }
+  // Each warning is one line on stderr as soon as the input is open (docs/cli.md).
+  options.on_warning = [command = flags.command()](const std::string& warning) {
+    std::string line = warning;
+    for (char& c : line) {
+      if (c == '\n' || c == '\r') c = ' ';
+    }
+    std::fprintf(stderr, "%s: warning: %s\n", command.c_str(), line.c_str());
+  };
   return options;
 }
 

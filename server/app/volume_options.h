@@ -16,10 +16,11 @@ namespace octoscope::app {
 void AddVolumeFlags(Flags& flags);
 
 // OpenOptions with the defaults and the parsers protocol/ provides (JSON raw sidecars, Zarr
-// metadata): for commands that open a volume without the volume flags.
+// metadata): for commands that open a volume without the volume flags. No warning hook.
 io::OpenOptions DefaultOpenOptions();
 
-// Builds the OpenOptions from parsed flags. Errors name the malformed flag.
+// Builds the OpenOptions from parsed flags. Errors name the malformed flag. The input's warnings
+// (VolumeInfo::warnings) are printed to stderr as "<command>: warning: <text>" when it is opened.
 Result<io::OpenOptions> VolumeOptionsFromFlags(const Flags& flags);
 
 }  // namespace octoscope::app

@@ -23,6 +23,7 @@
 #include "util/checked_math.h"
 #include "util/strings.h"
 #include "util/uninitialized_bytes.h"
+#include "volume/volume_info.h"
 
 namespace octoscope::io {
 namespace {
@@ -30,7 +31,6 @@ namespace {
 namespace fs = std::filesystem;
 
 constexpr int kMaxLevels = 64;
-constexpr int64_t kMaxChannels = int64_t{1} << 16;
 constexpr int64_t kMaxTimePoints = int64_t{1} << 24;
 constexpr int64_t kMaxAttributeElements = 1 << 16;
 constexpr uint64_t kMaxAttributeBytes = uint64_t{1} << 20;
@@ -448,10 +448,14 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
                            Num(options.series) + ")");
   }
   const std::string time = level + "/TimePoint " + Num(options.time);
-  const int64_t channels = CountNumbered(f, time, "Channel ", kMaxChannels);
+  // Counted up to one past the limit: a file with more channels is refused before they size
+  // anything.
+  const int64_t channels = CountNumbered(f, time, "Channel ", volume::kMaxChannels);
   if (channels == 0) return CorruptError(name + ": /" + time + " holds no \"Channel 0\"");
-  if (channels > kMaxChannels) {
-    return ResourceExhaustedError(name + ": more than " + Num(kMaxChannels) + " channels");
+  if (channels > volume::kMaxChannels) {
+    return ResourceExhaustedError(name + ": /" + time + " holds more than " +
+                                  Num(volume::kMaxChannels) +
+                                  " channels, the most Octoscope supports");
   }
 
   std::vector<ChannelData> data(static_cast<size_t>(channels));

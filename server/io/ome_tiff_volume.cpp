@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <map>
-#include <mutex>
 #include <optional>
 #include <string>
 #include <system_error>
@@ -13,6 +12,7 @@
 #include "io/spacing.h"
 #include "io/tiff_file.h"
 #include "io/tiff_file_cache.h"
+#include "io/tiff_stack_volume.h"
 #include "util/checked_math.h"
 #include "util/file_reading.h"
 #include "util/strings.h"
@@ -22,17 +22,11 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Most files one source keeps open for MappedPlane views (beyond the cache's kMaxOpenOmeTiffFiles):
-// each holds a descriptor. Planes of further files are not offered as views (callers copy them).
-constexpr size_t kMaxPinnedFiles = 64;
-
 // Planes (z, c, t) one series may declare: bounds the work of walking TiffData at open (a few
 // seconds at worst). Real series have at most millions of planes.
 constexpr uint64_t kMaxPlanesPerSeries = uint64_t{1} << 28;
 // Planes (z, c) of one time point: bounds the plane table (8 bytes each) built at open.
 constexpr uint64_t kMaxPlanesPerTimePoint = uint64_t{1} << 22;
-// Channels of one series (hyperspectral scans have hundreds).
-constexpr int64_t kMaxChannels = int64_t{1} << 16;
 
 // The largest TIFF page index accepted (TiffFile refuses far fewer IFDs anyway).
 constexpr int64_t kMaxIfdIndex = (int64_t{1} << 31) - 1;
@@ -115,8 +109,7 @@ class OmeTiffVolume final : public VolumeSource {
         files_(std::move(files)),
         planes_(std::move(planes)),
         channel_map_(std::move(channel_map)),
-        cache_(std::move(cache)),
-        pinned_(files_.size()) {}
+        cache_(std::move(cache)) {}
 
   const volume::VolumeInfo& info() const override { return info_; }
 
@@ -148,46 +141,24 @@ class OmeTiffVolume final : public VolumeSource {
     return Status::Ok();
   }
 
-  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+  std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
     if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
       return std::nullopt;
     }
     const auto [group, sample] = channel_map_[channel];
     const PlaneRef& ref = planes_[static_cast<size_t>(group) * info_.size[2] + z];
-    const size_t plane_bytes = info_.PlaneVoxels() * volume::BytesPerSample(info_.dtype);
-    std::shared_ptr<TiffFile> file;
-    {
-      std::lock_guard lock(pinned_mutex_);
-      file = pinned_[ref.file];
-    }
-    const bool pinned = file != nullptr;
-    if (!pinned) {
-      Result<std::shared_ptr<TiffFile>> opened = cache_->Get(files_[ref.file]);
-      if (!opened.ok()) return std::nullopt;
-      file = *std::move(opened);
-    }
+    // The returned plane holds the file open, so the cache may close its own handle meanwhile.
+    Result<std::shared_ptr<TiffFile>> file = cache_->Get(files_[ref.file]);
+    if (!file.ok()) return std::nullopt;
     // As in ReadSlab: a reopened file must still match the OME-XML.
-    if (ref.ifd >= file->ifd_count() || file->ifd(ref.ifd).dtype != info_.dtype) {
+    if (ref.ifd >= (*file)->ifd_count() || (*file)->ifd(ref.ifd).width != info_.size[0] ||
+        (*file)->ifd(ref.ifd).height != info_.size[1] ||
+        (*file)->ifd(ref.ifd).dtype != info_.dtype) {
       return std::nullopt;
     }
-    std::optional<std::span<const std::byte>> view = file->MappedPlane(ref.ifd, sample);
-    if (!view || view->size() != plane_bytes) return std::nullopt;
-    if (!pinned) {
-      // The cache may close `file` at any time; the view must live as long as this source, so the
-      // file is kept open here. Another thread may have pinned a handle of the same file
-      // meanwhile: then that one serves the view.
-      std::lock_guard lock(pinned_mutex_);
-      std::shared_ptr<TiffFile>& slot = pinned_[ref.file];
-      if (slot == nullptr) {
-        if (pinned_count_ >= kMaxPinnedFiles) return std::nullopt;
-        slot = file;
-        ++pinned_count_;
-      } else if (slot != file) {
-        view = slot->MappedPlane(ref.ifd, sample);
-        if (!view || view->size() != plane_bytes) return std::nullopt;
-      }
-    }
-    return view;
+    std::optional<uint64_t> offset = (*file)->StoredPlaneOffset(ref.ifd, sample);
+    if (!offset) return std::nullopt;
+    return StoredPlane{*std::move(file), *offset};
   }
 
  private:
@@ -199,11 +170,6 @@ class OmeTiffVolume final : public VolumeSource {
   // channel -> (group, sample within the group's pages).
   const std::vector<std::pair<int, int>> channel_map_;
   const std::shared_ptr<TiffFileCache> cache_;
-  // Files that served a MappedPlane view, by index into files_, kept open (and mapped) for the
-  // source's lifetime; at most kMaxPinnedFiles of them.
-  mutable std::mutex pinned_mutex_;
-  mutable std::vector<std::shared_ptr<TiffFile>> pinned_;  // GUARDED_BY(pinned_mutex_)
-  mutable size_t pinned_count_ = 0;                        // GUARDED_BY(pinned_mutex_)
 };
 
 // ----------------------------------------------------------------------------------------------
@@ -216,8 +182,10 @@ struct XmlDocument {
   bool in_tiff = false;
 };
 
-// Loads the OME-XML held by `path` (a TIFF or an XML file) without following references.
-Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache) {
+// Loads the OME-XML held by `path` (a TIFF or an XML file) without following references. Sets
+// `*malformed_in_tiff` (when given) if `path` is a TIFF whose own OME-XML does not parse.
+Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache,
+                            bool* malformed_in_tiff = nullptr) {
   std::error_code ec;
   if (!fs::is_regular_file(path, ec)) {
     return NotFoundError(Quote(path) + ": no such file");
@@ -239,13 +207,24 @@ Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache) {
       return UnsupportedError(Quote(path) + ": neither a TIFF nor an OME-XML document");
     }
   }
-  OCTO_ASSIGN_OR_RETURN(doc.metadata, ParseOmeXml(xml, Quote(path)));
+  Result<OmeMetadata> metadata = ParseOmeXml(xml, Quote(path));
+  if (!metadata.ok()) {
+    if (doc.in_tiff && malformed_in_tiff != nullptr &&
+        metadata.status().code() == StatusCode::kCorrupt) {
+      *malformed_in_tiff = true;
+    }
+    return metadata.status();
+  }
+  doc.metadata = *std::move(metadata);
   return doc;
 }
 
 // Loads the document with the full metadata for `path`, following a BinaryOnly reference once.
-Result<XmlDocument> LoadMetadata(const fs::path& path, TiffFileCache& cache) {
-  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadXml(path, cache));
+// Sets `*malformed_in_tiff` when `path` itself is a TIFF whose own OME-XML does not parse (not
+// when a document it refers to is malformed: that one is reported as an error).
+Result<XmlDocument> LoadMetadata(const fs::path& path, TiffFileCache& cache,
+                                 bool* malformed_in_tiff) {
+  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadXml(path, cache, malformed_in_tiff));
   if (!doc.metadata.binary_only) return doc;
   fs::path master =
       (path.parent_path() / doc.metadata.binary_only->metadata_file).lexically_normal();
@@ -372,19 +351,21 @@ Status CheckPixels(const std::string& source, const OmePixels& pixels, const Ope
   }
   // Bound the tables built later (SizeC sizes the channel list; Z x C the plane table; Z x C x T
   // the walk over TiffData).
+  OCTO_RETURN_IF_ERROR(volume::CheckChannelCount(pixels.size_c)
+                           .WithContext(source + ": series " + std::to_string(options.series) +
+                                        " declares SizeC=" + std::to_string(pixels.size_c)));
   std::optional<uint64_t> declared_planes =
       CheckedProduct({static_cast<uint64_t>(pixels.size_z), static_cast<uint64_t>(pixels.size_c),
                       static_cast<uint64_t>(pixels.size_time)});
-  if (pixels.size_c > kMaxChannels ||
-      static_cast<uint64_t>(pixels.size_z) * static_cast<uint64_t>(pixels.size_c) >
+  if (static_cast<uint64_t>(pixels.size_z) * static_cast<uint64_t>(pixels.size_c) >
           kMaxPlanesPerTimePoint ||
       !declared_planes || *declared_planes > kMaxPlanesPerSeries) {
     return ResourceExhaustedError(
         source + ": series " + std::to_string(options.series) + " declares " +
         std::to_string(pixels.size_z) + " z x " + std::to_string(pixels.size_c) + " c x " +
         std::to_string(pixels.size_time) + " t planes, more than supported (" +
-        std::to_string(kMaxChannels) + " channels, " + std::to_string(kMaxPlanesPerTimePoint) +
-        " planes per time point, " + std::to_string(kMaxPlanesPerSeries) + " in all)");
+        std::to_string(kMaxPlanesPerTimePoint) + " planes per time point, " +
+        std::to_string(kMaxPlanesPerSeries) + " in all)");
   }
   return Status::Ok();
 }
@@ -591,6 +572,24 @@ volume::VolumeInfo BuildInfo(const OmePixels& pixels, const std::vector<ChannelG
   return info;
 }
 
+// A TIFF whose own OME-XML is malformed is read as what it also is, a plain TIFF stack, as
+// tifffile does, never silently: the source carries a warning that names the file and the XML's
+// problem. When the pages do not form a stack either, the XML's error is returned with that.
+Result<std::unique_ptr<VolumeSource>> OpenAsPlainTiff(const fs::path& path,
+                                                      const OpenOptions& options,
+                                                      const Status& xml_error) {
+  Result<std::unique_ptr<VolumeSource>> plain = OpenTiffStack(path, options);
+  if (!plain.ok()) {
+    return Status(xml_error.code(), xml_error.message() +
+                                        "; nor can the file be read as a plain TIFF stack: " +
+                                        plain.status().message());
+  }
+  return WithWarnings(std::move(*plain),
+                      {xml_error.message() +
+                       "; read as a plain TIFF instead: each page is a z plane and each sample a "
+                       "channel, and the OME-XML's dimensions, channels and spacing are ignored"});
+}
+
 Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOptions& options) {
   std::error_code ec;
   const fs::path absolute = fs::absolute(input, ec);
@@ -600,7 +599,13 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
   limits.max_plane_bytes = options.max_plane_bytes;
   auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles);
 
-  OCTO_ASSIGN_OR_RETURN(XmlDocument doc, LoadMetadata(path, *cache));
+  bool malformed = false;
+  Result<XmlDocument> loaded = LoadMetadata(path, *cache, &malformed);
+  if (!loaded.ok()) {
+    if (malformed) return OpenAsPlainTiff(path, options, loaded.status());
+    return loaded.status();
+  }
+  XmlDocument doc = *std::move(loaded);
   const std::string source = Quote(doc.source);
   const std::vector<OmeImage>& images = doc.metadata.images;
   const int series_count = static_cast<int>(std::min<size_t>(images.size(), INT32_MAX));

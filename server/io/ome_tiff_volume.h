@@ -9,9 +9,8 @@
 // matches Pixels (width, height, sample type), so ReadSlab never meets a structural surprise.
 // Referenced TIFF files are opened lazily and at most kMaxOpenOmeTiffFiles stay open at once, so
 // a series spread over thousands of files does not exhaust file descriptors.
-// MappedPlane offers planes of uncompressed, native-order pages in place (TiffFile::MappedPlane);
-// a file that served such a view is kept open and mapped until the source is destroyed (at most 64
-// such files; planes of further files are not offered as views and are read instead).
+// FindStoredPlane locates planes of uncompressed, native-order pages (TiffFile::StoredPlaneOffset);
+// the StoredPlane it returns holds its file open while the caller reads it.
 //
 // Thread safety: the returned source is thread-safe (see volume_source.h); decoding goes through
 // TiffFile, which serializes access per file.

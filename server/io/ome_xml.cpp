@@ -1,5 +1,6 @@
 #include "io/ome_xml.h"
 
+#include <cctype>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -345,8 +346,10 @@ std::optional<volume::Rgba> ParseOmeColor(std::string_view text) {
   return rgba;
 }
 
-bool LooksLikeOmeXml(std::string_view text) {
-  // Skip the prolog (declaration, comments, whitespace) and look at the root element's name.
+namespace {
+
+// The root element's local name is "OME" (after the prolog: declaration, comments, whitespace).
+bool RootIsOme(std::string_view text) {
   size_t at = 0;
   while (at < text.size()) {
     at = text.find('<', at);
@@ -367,6 +370,20 @@ bool LooksLikeOmeXml(std::string_view text) {
     return name == "OME";
   }
   return false;
+}
+
+}  // namespace
+
+bool LooksLikeOmeXml(std::string_view text) {
+  if (RootIsOme(text)) return true;
+  // A document whose start is damaged still shows what it is by its end (tifffile's test) or by
+  // the OME namespace.
+  while (!text.empty() &&
+         (text.back() == '\0' || std::isspace(static_cast<unsigned char>(text.back())))) {
+    text.remove_suffix(1);
+  }
+  return text.ends_with("OME>") ||
+         text.find("openmicroscopy.org/Schemas/OME/") != std::string_view::npos;
 }
 
 Result<OmeMetadata> ParseOmeXml(std::string_view xml, std::string_view source) {

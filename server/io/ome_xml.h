@@ -94,8 +94,9 @@ inline constexpr uint64_t kMaxOmeXmlBytes = uint64_t{64} << 20;
 // document that holds neither an Image nor a BinaryOnly element is an error too.
 Result<OmeMetadata> ParseOmeXml(std::string_view xml, std::string_view source);
 
-// True when `text` looks like an OME-XML document (cheap sniffing, no full parse): an XML document
-// whose root element's local name is "OME".
+// True when `text` claims to be an OME-XML document (cheap sniffing, no full parse): its root
+// element's local name is "OME", or (a damaged start) it ends with "OME>" or names the OME schema
+// namespace. A claim is not a promise: ParseOmeXml decides whether the document is usable.
 bool LooksLikeOmeXml(std::string_view text);
 
 // Micrometres per `unit` for the OME UnitsLength symbols (SI "Ym".."ym", "Å"/"angstrom", "in",

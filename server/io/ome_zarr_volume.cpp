@@ -15,13 +15,13 @@
 #include "util/checked_math.h"
 #include "util/file_reading.h"
 #include "util/strings.h"
+#include "volume/volume_info.h"
 
 namespace octoscope::io {
 namespace {
 
 namespace fs = std::filesystem;
 
-constexpr int64_t kMaxChannels = int64_t{1} << 16;
 constexpr int kMaxSeriesScan = 1 << 20;   // bioformats2raw series folders counted at most.
 constexpr int kParentLevelsSearched = 3;  // An array path may be this deep inside its image.
 
@@ -391,10 +391,8 @@ Result<std::unique_ptr<VolumeSource>> OpenOmeZarr(const fs::path& path,
   }
   const int64_t channels = extent(map.c);
   const int64_t times = extent(map.t);
-  if (channels > kMaxChannels) {
-    return ResourceExhaustedError(name + ": " + Num(channels) +
-                                  " channels, more than the limit of " + Num(kMaxChannels));
-  }
+  // Channels size tables: bound them before anything else.
+  OCTO_RETURN_IF_ERROR(volume::CheckChannelCount(channels).WithContext(name));
   if (times > INT_MAX) return ResourceExhaustedError(name + ": " + Num(times) + " time points");
   const std::optional<uint64_t> plane_bytes =
       CheckedProduct({static_cast<uint64_t>(info.size[0]), static_cast<uint64_t>(info.size[1]),
@@ -421,6 +419,11 @@ Result<std::unique_ptr<VolumeSource>> OpenOmeZarr(const fs::path& path,
       info.channels[c].color = sel.omero[c].color;
       info.channels[c].window = sel.omero[c].window;
     }
+  } else if (sel.has_omero) {
+    info.warnings.push_back(name + ": \"omero\" lists " +
+                            Num(static_cast<int64_t>(sel.omero.size())) +
+                            " channels, the image has " + Num(channels) +
+                            "; its channel names, colours and windows are ignored");
   }
   const int space[3] = {map.x, map.y, map.z};
   for (int a = 0; a < 3; ++a) {

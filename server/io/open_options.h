@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <functional>
 #include <optional>
+#include <string>
 
 #include "io/raw_layout.h"
 #include "io/zarr_metadata.h"
@@ -41,6 +42,10 @@ struct OpenOptions {
   // Threads decoding the chunks of one slab read, the reading thread included; 0: the hardware
   // concurrency (at most 16).
   int decode_threads = 0;
+  // Called by OpenVolume once per warning of the volume it opened (VolumeInfo::warnings: what
+  // the reader had to guess or ignore), right after opening, so a command can show it before a
+  // long read. Unset: the warnings are only in info().
+  std::function<void(const std::string& warning)> on_warning;
 };
 
 }  // namespace octoscope::io

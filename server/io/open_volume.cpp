@@ -42,28 +42,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawWithSidecar(const fs::path& sidecar
   return source;
 }
 
-}  // namespace
-
-namespace {
-
-Result<std::unique_ptr<VolumeSource>> OpenByKind(const fs::path& path, const OpenOptions& options);
-
-}  // namespace
-
-Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<VolumeSource> source, OpenByKind(path, options));
-  // Single-resolution formats ignore OpenOptions::level: asking them for a coarser one is an error.
-  const volume::VolumeInfo& info = source->info();
-  if (options.level != info.level) {
-    return OutOfRangeError(path.string() + ": resolution level " + std::to_string(options.level) +
-                           " asked for, the file has " + std::to_string(info.level_count));
-  }
-  return source;
-}
-
-namespace {
-
-Result<std::unique_ptr<VolumeSource>> OpenByKind(const fs::path& path, const OpenOptions& options) {
+Result<std::unique_ptr<VolumeSource>> OpenAny(const fs::path& path, const OpenOptions& options) {
   std::error_code ec;
   fs::file_status status = fs::status(path, ec);
   if (ec || !fs::exists(status)) return NotFoundError(path.string() + ": no such file or folder");
@@ -105,5 +84,19 @@ Result<std::unique_ptr<VolumeSource>> OpenByKind(const fs::path& path, const Ope
 }
 
 }  // namespace
+
+Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<VolumeSource> source, OpenAny(path, options));
+  // Single-resolution formats ignore OpenOptions::level: asking them for a coarser one is an error.
+  const volume::VolumeInfo& info = source->info();
+  if (options.level != info.level) {
+    return OutOfRangeError(path.string() + ": resolution level " + std::to_string(options.level) +
+                           " asked for, the file has " + std::to_string(info.level_count));
+  }
+  if (options.on_warning) {
+    for (const std::string& warning : info.warnings) options.on_warning(warning);
+  }
+  return source;
+}
 
 }  // namespace octoscope::io

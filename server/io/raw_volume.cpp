@@ -27,16 +27,30 @@ constexpr uint64_t kInterleavedChunkBytes = uint64_t{4} << 20;
 
 std::string Num(uint64_t v) { return std::to_string(v); }
 
+// The raw data file: an owned read-only descriptor, read with positioned reads.
+class RawFile final : public PositionedFile {
+ public:
+  RawFile(int fd, std::string name) : fd_(fd), name_(std::move(name)) {}
+  int get() const { return fd_.get(); }
+
+  // pread keeps no shared offset, so threads don't race.
+  Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override {
+    return ReadFully(fd_.get(), offset, out, name_);
+  }
+
+ private:
+  const ScopedFd fd_;
+  const std::string name_;
+};
+
 class RawVolume final : public VolumeSource {
  public:
-  // REQUIRES: `info` validated; the file holds header_bytes + info.VoxelBytes() bytes.
-  // `file_size`: the size checked at open (>= header + voxel bytes).
-  RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::unique_ptr<ScopedFd> fd,
-            uint64_t file_size, const RawLayout& layout)
+  // REQUIRES: `info` validated; the file held header_bytes + info.VoxelBytes() bytes at open.
+  RawVolume(volume::VolumeInfo info, std::filesystem::path path, std::shared_ptr<RawFile> file,
+            const RawLayout& layout)
       : info_(std::move(info)),
         path_(std::move(path)),
-        fd_(std::move(fd)),
-        mapping_(fd_->get(), file_size),
+        file_(std::move(file)),
         header_bytes_(layout.header_bytes),
         interleaved_(layout.interleaved && layout.channels > 1),
         swap_(layout.big_endian != (std::endian::native == std::endian::big)) {}
@@ -60,8 +74,8 @@ class RawVolume final : public VolumeSource {
     return Status::Ok();
   }
 
-  // Planar files in native byte order store each plane as one run of the file: offered in place.
-  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+  // Planar files in native byte order store each plane as one run of the file.
+  std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
     if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
       return std::nullopt;
     }
@@ -69,10 +83,7 @@ class RawVolume final : public VolumeSource {
     if (interleaved_ || (swap_ && bps > 1)) return std::nullopt;
     const uint64_t plane_voxels = info_.PlaneVoxels();
     const uint64_t voxel = (static_cast<uint64_t>(channel) * info_.size[2] + z) * plane_voxels;
-    const uint64_t at = header_bytes_ + voxel * bps;  // Inside the file: checked at open.
-    // The samples are read in place, so they must be aligned (a header of odd size is not).
-    if (at % bps != 0) return std::nullopt;
-    return mapping_.View(at, plane_voxels * bps);
+    return StoredPlane{file_, header_bytes_ + voxel * bps};  // Inside the file: checked at open.
   }
 
  private:
@@ -101,13 +112,12 @@ class RawVolume final : public VolumeSource {
 
   // Fills `out` from file offset `offset`; pread keeps no shared offset, so threads don't race.
   Status ReadAt(uint64_t offset, std::span<std::byte> out) const {
-    return ReadFully(fd_->get(), offset, out, path_.string());
+    return file_->ReadBytes(offset, out);
   }
 
   const volume::VolumeInfo info_;
   const std::filesystem::path path_;
-  const std::unique_ptr<ScopedFd> fd_;
-  const LazyFileMapping mapping_;  // Of the file size checked at open; needs fd_ until mapped.
+  const std::shared_ptr<RawFile> file_;
   const uint64_t header_bytes_;
   const bool interleaved_;
   const bool swap_;
@@ -169,9 +179,9 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
     if (err == ENOENT) return NotFoundError(name + ": raw data file not found");
     return IoError(name + ": cannot open raw data file: " + std::strerror(err));
   }
-  auto fd = std::make_unique<ScopedFd>(raw_fd);
+  auto file = std::make_shared<RawFile>(raw_fd, name);
   struct stat st;
-  if (::fstat(fd->get(), &st) != 0) {
+  if (::fstat(file->get(), &st) != 0) {
     return IoError(name + ": cannot stat raw data file: " + std::strerror(errno));
   }
   if (!S_ISREG(st.st_mode)) return UnsupportedError(name + ": not a regular file");
@@ -194,7 +204,7 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
   ApplySpacingOverrides(info, options);
   if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
   return std::unique_ptr<VolumeSource>(
-      new RawVolume(std::move(info), layout.data_file, std::move(fd), file_size, layout));
+      new RawVolume(std::move(info), layout.data_file, std::move(file), layout));
 }
 
 }  // namespace octoscope::io

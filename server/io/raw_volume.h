@@ -5,9 +5,8 @@
 //
 // Reads use pread on one file descriptor (no shared file offset), so ReadSlab is safe from many
 // threads at once; interleaved files are de-interleaved through a bounded chunk buffer, never by
-// reading the whole file. Planar files in native byte order (with a header that keeps samples
-// aligned) offer their planes in place through MappedPlane (a read-only mapping of the file, made
-// on first use).
+// reading the whole file. Planar files in native byte order say where each plane is stored
+// (FindStoredPlane).
 //
 // Thread safety: the returned source is thread-safe (see volume_source.h).
 #ifndef OCTOSCOPE_IO_RAW_VOLUME_H_

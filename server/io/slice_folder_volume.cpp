@@ -317,9 +317,11 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
     }
   }
 
-  // Open every slice once: all must agree with the first.
+  // Open every slice once: all must agree with the first. (Opened as the cache would open them:
+  // the first ones are handed to it.)
   TiffFile::Limits limits;
   limits.max_plane_bytes = options.max_plane_bytes;
+  const TiffFile::Limits file_limits = TiffFileCache::PerFileLimits(limits, kMaxOpenSliceFiles);
   std::optional<TiffIfd> first;
   std::string first_description;  // The first slice page's ImageDescription (for its spacing).
   // Handles to keep cached.
@@ -328,7 +330,7 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   for (size_t c = 0; c < channels.size(); ++c) {
     for (size_t z = 0; z < slices; ++z) {
       const std::filesystem::path& path = channels[c].files[z];
-      OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, limits));
+      OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, file_limits));
       std::optional<int> index = SliceIfd(*file);
       if (!index) {
         return UnsupportedError(path.string() + ": has " + std::to_string(file->ifd_count()) +

@@ -11,6 +11,7 @@
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <list>
 #include <string_view>
 #include <system_error>
 #include <unordered_map>
@@ -26,6 +27,8 @@ namespace octoscope::io {
 namespace {
 
 constexpr size_t kMaxKeptMessages = 8;
+// Pages whose decoding failure a TiffFile remembers (each holds one message).
+constexpr size_t kMaxRememberedFailures = 1024;
 
 // Collects libtiff's messages for one handle. libtiff calls the handlers below with this object as
 // user data, so no global state is involved; access is serialized by TiffFile's mutex (or happens
@@ -158,13 +161,20 @@ struct PlaneJob {
   const std::string& name;  // The file, for messages.
   int index;                // The IFD.
   const TiffIfd& ifd;
-  int sample;                // The sample wanted.
-  std::span<std::byte> out;  // width * height samples of `bytes` each.
+  int sample;                // The sample wanted; -1: all samples of chunky pixels.
+  std::span<std::byte> out;  // width * height pixels of `out_pixel_bytes` each.
   uint64_t bytes;            // Bytes per sample.
   bool chunky;               // Each pixel holds all its samples (spp > 1, contiguous).
   uint64_t pixel_bytes;      // Bytes of one decoded pixel: bytes * (chunky ? spp : 1).
   uint16_t plane_sample;     // The separate plane holding `sample` (0 when chunky).
-  uint64_t file_size;
+  uint64_t file_size;        // As sized at Open.
+  int fd;                    // The file's descriptor (for a truncation check after an error).
+
+  bool all_samples() const { return sample < 0; }
+  // Bytes of one pixel of `out`: the whole decoded pixel, or one sample.
+  uint64_t out_pixel_bytes() const { return all_samples() ? pixel_bytes : bytes; }
+  // Whether decoded blocks go through scratch memory to have one sample picked out.
+  bool extracts() const { return chunky && !all_samples(); }
 };
 
 // One pread of the direct path: `bytes` file bytes at `file_offset` into the plane at `out_offset`.
@@ -213,16 +223,38 @@ struct TiffFile::Impl {
   // The IFD libtiff has loaded and set up for decoding (SelectIfd); -1: none or unknown (after an
   // error, and after Open, which leaves libtiff on the last IFD without codec set-up).
   int current_ifd = -1;
+  uint64_t opened_size = 0;  // The file's size at Open.
   // The largest strip or tile ReadPlane decodes into `scratch` (Limits::max_plane_bytes).
   uint64_t max_block_bytes = 0;
   // Scratch for one decoded strip or tile when it cannot be decoded straight into the caller's
   // buffer; freed after a read when large, so an idle file holds little memory.
   std::vector<std::byte> scratch;
-  // The read-only mapping behind MappedPlane / MappedBytes (thread-safe on its own; set at Open).
-  std::unique_ptr<LazyFileMapping> mapping;
-  // MappedPlane's answers, keyed by IFD index << 16 | sample: the plane's file offset, or nullopt
-  // when it cannot be mapped. Strip tables never change, so each page is examined once.
-  std::unordered_map<uint64_t, std::optional<uint64_t>> mapped_offsets;
+  // StoredPlaneOffset's answers, keyed by IFD index << 16 | sample: the plane's file offset, or
+  // nullopt when it is not stored as decoded. Strip tables never change: each page is examined
+  // once.
+  std::unordered_map<uint64_t, std::optional<uint64_t>> stored_offsets;
+  // Decoded chunky pages (all samples), most recently used first; their bytes sum to
+  // cached_bytes <= max_cached_bytes.
+  struct CachedPage {
+    int index;
+    std::vector<std::byte> pixels;
+  };
+  std::list<CachedPage> cached_pages;
+  uint64_t cached_bytes = 0;
+  uint64_t max_cached_bytes = 0;
+  // Pages (keyed like stored_offsets, by the sample plane read) that failed to decode in a way
+  // that does not change between reads (corrupt, unsupported, over a limit): the same read fails
+  // again at once. At most kMaxRememberedFailures are kept.
+  std::unordered_map<uint64_t, Status> failed_planes;
+  uint64_t blocks_decoded = 0;
+
+  // Drops the least recently used cached pages until `incoming` more bytes fit the budget.
+  void MakeRoom(uint64_t incoming) {
+    while (!cached_pages.empty() && cached_bytes + incoming > max_cached_bytes) {
+      cached_bytes -= cached_pages.back().pixels.size();
+      cached_pages.pop_back();
+    }
+  }
 
   ~Impl() {
     if (tif != nullptr) {
@@ -244,7 +276,7 @@ struct TiffFile::Impl {
                       uint64_t first);
   Status ReadTiles(const PlaneJob& job);
   // The file offset of sample `sample` of IFD `index` when its strips hold exactly the decoded
-  // plane, contiguous in strip order (see TiffFile::MappedPlane); nullopt otherwise.
+  // plane, contiguous in strip order (see TiffFile::StoredPlaneOffset); nullopt otherwise.
   std::optional<uint64_t> ContiguousPlaneOffset(const std::string& name, int index,
                                                 const TiffIfd& ifd, int sample, uint64_t file_size);
 };
@@ -481,10 +513,9 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
   // read of any IFD (the last one included) select it properly.
   impl.current_ifd = -1;
   impl.max_block_bytes = limits.max_plane_bytes;
+  impl.max_cached_bytes = limits.max_cached_bytes;
+  impl.opened_size = file->file_size_;
   impl.sink.Clear();
-  // The descriptor stays open as long as the TiffFile (libtiff owns it), so mapping can wait for
-  // the first MappedPlane; only the size validated here is ever mapped.
-  impl.mapping = std::make_unique<LazyFileMapping>(impl.fd, file->file_size_);
   return file;
 }
 
@@ -516,6 +547,15 @@ Status CheckStrile(TIFF* tif, const PlaneJob& job, const char* kind, uint32_t st
   return Status::Ok();
 }
 
+// "; the file is truncated: ..." when the file behind `fd` is now shorter than the `opened_size`
+// bytes it had at Open (a writer cut it short: libtiff's own messages do not say so); "" otherwise.
+std::string TruncationNote(uint64_t opened_size, int fd) {
+  struct stat st;
+  if (::fstat(fd, &st) != 0 || static_cast<uint64_t>(st.st_size) >= opened_size) return "";
+  return "; the file is truncated: it has " + std::to_string(st.st_size) + " bytes, " +
+         std::to_string(opened_size) + " when it was opened";
+}
+
 Status DecodeError(const PlaneJob& job, const char* kind, uint32_t strile, tmsize_t got,
                    uint64_t want, const MessageSink& sink) {
   std::string message =
@@ -528,18 +568,19 @@ Status DecodeError(const PlaneJob& job, const char* kind, uint32_t strile, tmsiz
     message +=
         " decoded to " + std::to_string(got) + " bytes, " + std::to_string(want) + " expected";
   }
-  return CorruptError(Join(message, sink.Describe()));
+  return CorruptError(Join(message, sink.Describe()) + TruncationNote(job.file_size, job.fd));
 }
 
 // Zeroes columns [x0, x0 + cols) of rows [y0, y0 + rows) of the plane (a sparse strip or tile).
 void ZeroRect(const PlaneJob& job, uint64_t x0, uint64_t y0, uint64_t cols, uint64_t rows) {
   const uint64_t width = job.ifd.width;
+  const uint64_t bytes = job.out_pixel_bytes();
   if (x0 == 0 && cols == width) {  // Whole rows: one contiguous run.
-    std::memset(job.out.data() + y0 * width * job.bytes, 0, rows * width * job.bytes);
+    std::memset(job.out.data() + y0 * width * bytes, 0, rows * width * bytes);
     return;
   }
   for (uint64_t y = 0; y < rows; ++y) {
-    std::memset(job.out.data() + ((y0 + y) * width + x0) * job.bytes, 0, cols * job.bytes);
+    std::memset(job.out.data() + ((y0 + y) * width + x0) * bytes, 0, cols * bytes);
   }
 }
 
@@ -550,7 +591,8 @@ Status TiffFile::Impl::SelectIfd(const std::string& name, int index, const TiffI
   current_ifd = -1;
   if (!TIFFSetSubDirectory(tif, ifd.offset)) {
     return CorruptError(
-        Join(name + ": cannot reload IFD " + std::to_string(index), sink.Describe()));
+        Join(name + ": cannot reload IFD " + std::to_string(index), sink.Describe()) +
+        TruncationNote(opened_size, fd));
   }
   if (ifd.compression == COMPRESSION_JPEG && ifd.photometric == PHOTOMETRIC_YCBCR) {
     // Let libjpeg convert to RGB instead of handing out subsampled YCbCr. A pseudo-tag of the
@@ -634,7 +676,7 @@ Status TiffFile::Impl::DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip
   const uint64_t height = job.ifd.height;
   const uint64_t row_bytes = width * job.pixel_bytes;
   const bool uncompressed = job.ifd.compression == COMPRESSION_NONE;
-  if (job.chunky) {
+  if (job.extracts()) {
     const uint64_t block = rows_per_strip * row_bytes;  // <= max_block_bytes, checked at Open.
     if (block > max_block_bytes) {
       return ResourceExhaustedError(
@@ -648,7 +690,7 @@ Status TiffFile::Impl::DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip
     const uint64_t y0 = s * rows_per_strip;
     const uint64_t rows = std::min(rows_per_strip, height - y0);
     const uint64_t want = rows * row_bytes;
-    std::byte* dst = job.out.data() + y0 * width * job.bytes;
+    std::byte* dst = job.out.data() + y0 * width * job.out_pixel_bytes();
     bool sparse = false;
     OCTO_RETURN_IF_ERROR(CheckStrile(tif, job, "strip", strip, uncompressed ? want : 0, &sparse));
     if (sparse) {
@@ -656,12 +698,13 @@ Status TiffFile::Impl::DecodeStrips(const PlaneJob& job, uint64_t rows_per_strip
       continue;
     }
     // For uncompressed data libtiff read()s the strip straight into `target`, with no copy.
-    std::byte* target = job.chunky ? scratch.data() : dst;
+    std::byte* target = job.extracts() ? scratch.data() : dst;
+    ++blocks_decoded;
     const tmsize_t got = TIFFReadEncodedStrip(tif, strip, target, static_cast<tmsize_t>(want));
     if (got != static_cast<tmsize_t>(want) || !sink.errors.empty()) {
       return DecodeError(job, "strip", strip, got, want, sink);
     }
-    if (job.chunky) {
+    if (job.extracts()) {
       ExtractSample(target, job.ifd.samples_per_pixel, job.sample, job.bytes, rows * width, dst);
     }
   }
@@ -712,6 +755,7 @@ Status TiffFile::Impl::ReadTiles(const PlaneJob& job) {
         ZeroRect(job, tx, ty, cols, rows);
         continue;
       }
+      ++blocks_decoded;
       const tmsize_t got =
           TIFFReadEncodedTile(tif, tile, scratch.data(), static_cast<tmsize_t>(*tile_bytes));
       if (got != static_cast<tmsize_t>(*tile_bytes) || !sink.errors.empty()) {
@@ -720,11 +764,11 @@ Status TiffFile::Impl::ReadTiles(const PlaneJob& job) {
       // Crop the tile at the right and bottom edges of the image.
       for (uint64_t y = 0; y < rows; ++y) {
         const std::byte* src = scratch.data() + y * tile_row_bytes;
-        std::byte* dst = job.out.data() + ((ty + y) * width + tx) * job.bytes;
-        if (job.chunky) {
+        std::byte* dst = job.out.data() + ((ty + y) * width + tx) * job.out_pixel_bytes();
+        if (job.extracts()) {
           ExtractSample(src, ifd.samples_per_pixel, job.sample, job.bytes, cols, dst);
         } else {
-          std::memcpy(dst, src, cols * job.bytes);
+          std::memcpy(dst, src, cols * job.out_pixel_bytes());
         }
       }
     }
@@ -758,8 +802,35 @@ Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
                                 std::to_string(plane_bytes));
   }
 
+  const bool chunky = ifd.planar_config != PLANARCONFIG_SEPARATE && ifd.samples_per_pixel > 1;
+  // The sample plane read: every sample of chunky pixels comes from the same strips or tiles.
+  const uint64_t key =
+      (static_cast<uint64_t>(index) << 16) | static_cast<uint64_t>(chunky ? 0 : sample);
+  const uint64_t pixels = uint64_t{ifd.width} * ifd.height;
+  const uint64_t page_bytes = plane_bytes * ifd.samples_per_pixel;  // < 2^32 * 2^16.
+
   std::unique_lock<std::mutex> lock(mutex_);
   Impl& impl = *impl_;
+  // 1. A page that failed before fails the same way now.
+  if (auto failed = impl.failed_planes.find(key); failed != impl.failed_planes.end()) {
+    return failed->second;
+  }
+  // 2. Another sample of a chunky page decoded before: pick it out of the kept page.
+  const bool keep_page = chunky && page_bytes <= impl.max_cached_bytes;
+  if (keep_page) {
+    for (auto it = impl.cached_pages.begin(); it != impl.cached_pages.end(); ++it) {
+      if (it->index != index) continue;
+      impl.cached_pages.splice(impl.cached_pages.begin(), impl.cached_pages, it);
+      ExtractSample(it->pixels.data(), ifd.samples_per_pixel, sample, bytes, pixels, out.data());
+      return Status::Ok();
+    }
+  }
+  // 3. Decode: a chunky page that can be kept is decoded whole (all samples), else only `sample`.
+  std::vector<std::byte> page;
+  if (keep_page) {
+    impl.MakeRoom(page_bytes);
+    page.resize(page_bytes);
+  }
   impl.sink.Clear();
   Status result = impl.SelectIfd(name, index, ifd);
   if (result.ok()) {
@@ -771,17 +842,17 @@ Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
     }
   }
   if (result.ok()) {
-    const bool chunky = ifd.planar_config != PLANARCONFIG_SEPARATE && ifd.samples_per_pixel > 1;
     const PlaneJob job{name,
                        index,
                        ifd,
-                       sample,
-                       out,
+                       keep_page ? -1 : sample,
+                       keep_page ? std::span<std::byte>(page) : out,
                        bytes,
                        chunky,
                        bytes * (chunky ? ifd.samples_per_pixel : 1),
                        static_cast<uint16_t>(chunky ? 0 : sample),
-                       file_size_};
+                       file_size_,
+                       impl.fd};
     const bool swap = bytes > 1 && big_endian_ != (std::endian::native == std::endian::big);
     result = ifd.tiled ? impl.ReadTiles(job) : impl.ReadStrips(job, lock, swap);
   }
@@ -790,10 +861,27 @@ Status TiffFile::ReadPlane(int index, int sample, std::span<std::byte> out) {
     if (impl.scratch.size() > (size_t{64} << 20)) {
       impl.scratch = std::vector<std::byte>();  // Do not keep a huge scratch buffer around.
     }
-    // After a failure libtiff's per-directory state may be off; reload the IFD next time.
-    if (!result.ok()) impl.current_ifd = -1;
+    if (!result.ok()) {
+      // After a failure libtiff's per-directory state may be off; reload the IFD next time.
+      impl.current_ifd = -1;
+      const StatusCode code = result.code();
+      if ((code == StatusCode::kCorrupt || code == StatusCode::kUnsupported ||
+           code == StatusCode::kResourceExhausted) &&
+          impl.failed_planes.size() < kMaxRememberedFailures) {
+        impl.failed_planes.emplace(key, result);
+      }
+    } else if (keep_page) {
+      ExtractSample(page.data(), ifd.samples_per_pixel, sample, bytes, pixels, out.data());
+      impl.cached_bytes += page.size();
+      impl.cached_pages.push_front({index, std::move(page)});
+    }
   }
   return result;
+}
+
+uint64_t TiffFile::blocks_decoded() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return impl_->blocks_decoded;
 }
 
 std::optional<uint64_t> TiffFile::Impl::ContiguousPlaneOffset(const std::string& name, int index,
@@ -835,12 +923,10 @@ std::optional<uint64_t> TiffFile::Impl::ContiguousPlaneOffset(const std::string&
   }
   const uint64_t plane_bytes = height * row_bytes;  // Checked at Open.
   if (start > file_size || plane_bytes > file_size - start) return std::nullopt;
-  // The view is read as an array of samples: it must be aligned for them (the mapping is).
-  if (start % bytes != 0) return std::nullopt;
   return start;
 }
 
-std::optional<std::span<const std::byte>> TiffFile::MappedPlane(int index, int sample) {
+std::optional<uint64_t> TiffFile::StoredPlaneOffset(int index, int sample) {
   if (index < 0 || index >= ifd_count()) return std::nullopt;
   const TiffIfd& ifd = ifds_[index];
   if (!ifd.dtype || sample < 0 || sample >= ifd.samples_per_pixel) return std::nullopt;
@@ -851,26 +937,16 @@ std::optional<std::span<const std::byte>> TiffFile::MappedPlane(int index, int s
   if (ifd.bits_per_sample != bytes * 8) return std::nullopt;
   if (bytes > 1 && big_endian_ != (std::endian::native == std::endian::big)) return std::nullopt;
   const uint64_t key = (static_cast<uint64_t>(index) << 16) | static_cast<uint64_t>(sample);
-  std::optional<uint64_t> offset;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    Impl& impl = *impl_;
-    auto it = impl.mapped_offsets.find(key);
-    if (it == impl.mapped_offsets.end()) {
-      it = impl.mapped_offsets
-               .emplace(key,
-                        impl.ContiguousPlaneOffset(path_.string(), index, ifd, sample, file_size_))
-               .first;
-    }
-    offset = it->second;
+  std::lock_guard<std::mutex> lock(mutex_);
+  Impl& impl = *impl_;
+  auto it = impl.stored_offsets.find(key);
+  if (it == impl.stored_offsets.end()) {
+    it = impl.stored_offsets
+             .emplace(key,
+                      impl.ContiguousPlaneOffset(path_.string(), index, ifd, sample, file_size_))
+             .first;
   }
-  if (!offset) return std::nullopt;
-  return impl_->mapping->View(*offset, uint64_t{ifd.width} * ifd.height * bytes);
-}
-
-std::optional<std::span<const std::byte>> TiffFile::MappedBytes(uint64_t offset,
-                                                                uint64_t length) const {
-  return impl_->mapping->View(offset, length);
+  return it->second;
 }
 
 Result<std::string> TiffFile::Description(int index, size_t max_bytes) {

@@ -9,11 +9,17 @@
 // decoded strip or tile, which chunky pixels decode with all their samples, must each fit
 // Limits::max_plane_bytes); IFD loops are refused.
 //
+// Pages of chunky (interleaved) samples decode all samples at once; the decoded page is kept
+// (up to Limits::max_cached_bytes, least recently used dropped first), so reading each of its
+// samples in turn (one channel after another) decodes it once. A page that fails to decode fails
+// again at once for its other samples, without touching libtiff.
+//
 // Planes stored exactly as decoded (uncompressed, native byte order, contiguous strips) can also
-// be viewed in place, in a read-only mapping of the file made on first use (MappedPlane).
+// be located (StoredPlaneOffset) and read with positioned reads (ReadBytes). The file is never
+// memory-mapped: a file truncated while open gives errors, not SIGBUS.
 //
 // Thread safety: thread-safe. Decoding calls are serialized by an internal mutex (a libtiff
-// handle is not reentrant); the index is immutable after Open.
+// handle is not reentrant); the index is immutable after Open; ReadBytes needs no lock.
 #ifndef OCTOSCOPE_IO_TIFF_FILE_H_
 #define OCTOSCOPE_IO_TIFF_FILE_H_
 
@@ -26,6 +32,7 @@
 #include <string>
 #include <vector>
 
+#include "io/volume_source.h"
 #include "util/result.h"
 #include "volume/data_type.h"
 
@@ -59,13 +66,16 @@ struct TiffIfd {
   uint32_t subfile_type = 0;
 };
 
-class TiffFile {
+class TiffFile final : public PositionedFile {
  public:
   struct Limits {
     // One decoded plane of one sample; also one decoded strip or tile (all samples of chunky
     // pixels), which ReadPlane holds in scratch memory.
     uint64_t max_plane_bytes = uint64_t{4} << 30;
     uint32_t max_ifds = 1u << 20;
+    // Decoded chunky pages (all samples) kept for reading their other samples; a page larger
+    // than this is decoded again for each sample. 0 keeps none.
+    uint64_t max_cached_bytes = uint64_t{64} << 20;
   };
 
   // Opens `path` and indexes every IFD. Errors: not a TIFF, not a regular file (Unsupported),
@@ -76,7 +86,7 @@ class TiffFile {
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path) {
     return Open(path, Limits{});
   }
-  ~TiffFile();
+  ~TiffFile() override;
   TiffFile(const TiffFile&) = delete;
   TiffFile& operator=(const TiffFile&) = delete;
 
@@ -89,9 +99,13 @@ class TiffFile {
   const TiffIfd& ifd(int index) const { return ifds_[index]; }
 
   // Decodes sample `sample` of IFD `index` into `out`: width*height samples, row-major, in the
-  // IFD's dtype and native byte order.
+  // IFD's dtype and native byte order. Chunky pages are decoded whole and kept (see above).
   // REQUIRES: out.size() == width * height * BytesPerSample(*dtype).
   Status ReadPlane(int index, int sample, std::span<std::byte> out);
+
+  // Strips or tiles decoded by libtiff so far (diagnostics: tests check that reading every sample
+  // of a chunky page decodes it once).
+  uint64_t blocks_decoded() const;
 
   // The ImageDescription of IFD `index` ("" when absent), read on demand. ResourceExhausted when
   // it is longer than `max_bytes`.
@@ -103,26 +117,18 @@ class TiffFile {
   // files > 4 GB keep one IFD and store the further images right after the first).
   Result<uint64_t> ContiguousDataOffset(int index);
 
-  // A zero-copy view of sample `sample` of IFD `index`: the width*height samples ReadPlane would
-  // decode, in place in a read-only mapping of the file (mapped once, on the first call; unmapped
-  // when this TiffFile is destroyed, so the view is valid while it lives). Offered only when the
-  // file's bytes are exactly the decoded samples: uncompressed strips (not tiles) of one sample
-  // per pixel, or planar (separate) samples; whole-byte samples of the IFD's dtype in native byte
-  // order (bit fill order MSB first); the plane's strips contiguous in strip order with no gap or
-  // sparse strip; the whole plane inside the file (as sized at Open) and aligned for its sample
-  // type. nullopt otherwise, and for invalid arguments: callers then use ReadPlane.
-  // Caveat: if another process truncates the file while it is mapped, touching the lost pages
-  // raises SIGBUS (the view cannot report an error). We map only the size validated at Open.
-  std::optional<std::span<const std::byte>> MappedPlane(int index, int sample = 0);
-
-  // A zero-copy view of the raw bytes [offset, offset + length) of the file (file byte order),
-  // in the same mapping as MappedPlane; nullopt when the range is not inside the file (as sized at
-  // Open) or the file cannot be mapped. Same validity and caveat as MappedPlane.
-  std::optional<std::span<const std::byte>> MappedBytes(uint64_t offset, uint64_t length) const;
+  // The file offset of sample `sample` of IFD `index` when the file stores exactly the
+  // width*height samples ReadPlane would decode as one run: uncompressed strips (not tiles) of one
+  // sample per pixel, or planar (separate) samples; whole-byte samples of the IFD's dtype in native
+  // byte order (bit fill order MSB first); the plane's strips contiguous in strip order with no gap
+  // or sparse strip; the whole plane inside the file (as sized at Open). nullopt otherwise, and
+  // for invalid arguments: callers then use ReadPlane. Each page is examined once.
+  std::optional<uint64_t> StoredPlaneOffset(int index, int sample = 0);
 
   // Reads out.size() raw bytes at `offset` (file byte order). Errors when the range does not lie
-  // inside the file. Thread-safe without taking the decoding lock (positioned reads).
-  Status ReadBytes(uint64_t offset, std::span<std::byte> out) const;
+  // inside the file as sized at Open, or when the file has shrunk since ("the file is truncated").
+  // Thread-safe without taking the decoding lock (positioned reads).
+  Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override;
 
  private:
   struct Impl;
@@ -133,7 +139,7 @@ class TiffFile {
   bool big_endian_ = false;
   uint64_t file_size_ = 0;
   std::vector<TiffIfd> ifds_;
-  std::mutex mutex_;
+  mutable std::mutex mutex_;
   std::unique_ptr<Impl> impl_;  // GUARDED_BY(mutex_) for decoding.
 };
 

@@ -1,9 +1,16 @@
 #include "io/tiff_file_cache.h"
 
+#include <algorithm>
+
 namespace octoscope::io {
 
+TiffFile::Limits TiffFileCache::PerFileLimits(TiffFile::Limits limits, size_t capacity) {
+  limits.max_cached_bytes /= std::max<size_t>(capacity, 1);
+  return limits;
+}
+
 TiffFileCache::TiffFileCache(TiffFile::Limits limits, size_t capacity)
-    : limits_(limits), capacity_(capacity < 1 ? 1 : capacity) {}
+    : limits_(PerFileLimits(limits, capacity)), capacity_(capacity < 1 ? 1 : capacity) {}
 
 Result<std::shared_ptr<TiffFile>> TiffFileCache::Get(const std::filesystem::path& path) {
   {

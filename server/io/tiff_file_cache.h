@@ -2,6 +2,10 @@
 // so a series of thousands of files never exhausts file descriptors. Handles are shared_ptrs:
 // an evicted file stays open until the reads already using it finish.
 //
+// The files share one budget for the decoded pages TiffFile keeps (TiffFile::Limits::
+// max_cached_bytes): each file opened here gets 1/capacity of it, so the cache as a whole keeps
+// no more than one file alone would.
+//
 // Invariant: at most `capacity` files are held by the cache (callers may briefly hold more).
 // Thread safety: thread-safe. Opening (indexing) a file happens outside the lock, so other
 // threads keep reading cached files meanwhile; if two threads open the same file at once, the
@@ -26,6 +30,10 @@ class TiffFileCache {
  public:
   // REQUIRES: capacity >= 1.
   TiffFileCache(TiffFile::Limits limits, size_t capacity);
+
+  // `limits` with max_cached_bytes shared among `capacity` files: what the cache opens files with
+  // (and what files opened elsewhere and Put here should be opened with).
+  static TiffFile::Limits PerFileLimits(TiffFile::Limits limits, size_t capacity);
 
   // The open file at `path`, opening and indexing it when not cached.
   Result<std::shared_ptr<TiffFile>> Get(const std::filesystem::path& path);

@@ -17,9 +17,6 @@
 namespace octoscope::io {
 namespace {
 
-// Channels an ImageJ description may declare (hyperspectral stacks have hundreds).
-constexpr int64_t kMaxImageJChannels = 65536;
-
 // Where the pages of a file sit along channel, z and time:
 //   page = c + C * ((t % F) + F * z + P * (t / F))
 // C: channels stored as pages (1 when the samples of a pixel are the channels); F: frames per
@@ -77,31 +74,28 @@ class TiffStackSource : public VolumeSource {
     return Status::Ok();
   }
 
-  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
+  std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
     if (channel < 0 || channel >= info_.channel_count() || z < 0 || z >= info_.size[2]) {
       return std::nullopt;
     }
     const int64_t id =
         samples_are_channels_ ? planes_[z] : planes_[z * info_.channel_count() + channel];
-    const size_t bytes = volume::BytesPerSample(info_.dtype);
-    const uint64_t plane_bytes = info_.PlaneVoxels() * bytes;
     if (data_offset_) {
       // ImageJ > 4 GB: the images are raw runs of the file, in the file's byte order.
-      const uint64_t at = *data_offset_ + static_cast<uint64_t>(id) * plane_bytes;
+      const size_t bytes = volume::BytesPerSample(info_.dtype);
       if (bytes > 1 && file_->big_endian() != (std::endian::native == std::endian::big)) {
         return std::nullopt;
       }
-      if (at % bytes != 0) return std::nullopt;  // Samples must be aligned to be read in place.
-      return file_->MappedBytes(at, plane_bytes);
+      return StoredPlane{file_, *data_offset_ + static_cast<uint64_t>(id) * SlabBytes(1)};
     }
-    std::optional<std::span<const std::byte>> view =
-        file_->MappedPlane(static_cast<int>(id), samples_are_channels_ ? channel : 0);
-    if (!view || view->size() != plane_bytes) return std::nullopt;
-    return view;
+    std::optional<uint64_t> offset =
+        file_->StoredPlaneOffset(static_cast<int>(id), samples_are_channels_ ? channel : 0);
+    if (!offset) return std::nullopt;
+    return StoredPlane{file_, *offset};
   }
 
  private:
-  const std::unique_ptr<TiffFile> file_;
+  const std::shared_ptr<TiffFile> file_;
   const volume::VolumeInfo info_;
   // The plane id of (z, c) at planes_[z * C + c] (or planes_[z] when the samples are the
   // channels): an IFD index, or an image index when data_offset_ is set.
@@ -130,6 +124,14 @@ Status CheckSamePage(const TiffFile& file, int first, int index) {
   return UnsupportedError(file.path().string() + ": pages differ: IFD " + std::to_string(index) +
                           " is " + describe(b) + ", IFD " + std::to_string(first) + " is " +
                           describe(a) + "; a stack needs equal pages");
+}
+
+// A page whose samples become channels must not declare more than a volume may have.
+Status CheckSampleChannels(const std::string& name, int64_t index, const TiffIfd& page) {
+  return volume::CheckChannelCount(page.samples_per_pixel)
+      .WithContext(name + ": IFD " + std::to_string(index) + " has " +
+                   std::to_string(page.samples_per_pixel) +
+                   " samples per pixel, each of which would be a channel");
 }
 
 Status CheckTime(const std::string& name, int time, int64_t time_points) {
@@ -270,10 +272,10 @@ Result<std::unique_ptr<VolumeSource>> OpenImageJ(std::unique_ptr<TiffFile> file,
     return CorruptError(name + ": ImageJ description has negative counts");
   }
   // Channels size a table: bound them before anything else.
-  if (ij.channels > kMaxImageJChannels) {
-    return CorruptError(name +
-                        ": ImageJ description declares channels=" + std::to_string(ij.channels) +
-                        ", more than the " + std::to_string(kMaxImageJChannels) + " supported");
+  if (ij.channels > 0) {
+    OCTO_RETURN_IF_ERROR(volume::CheckChannelCount(ij.channels)
+                             .WithContext(name + ": ImageJ description declares channels=" +
+                                          std::to_string(ij.channels)));
   }
   int64_t c = std::max<int64_t>(1, ij.channels);
   int64_t z = std::max<int64_t>(1, ij.slices);
@@ -303,6 +305,7 @@ Result<std::unique_ptr<VolumeSource>> OpenImageJ(std::unique_ptr<TiffFile> file,
     }
   }
   const bool samples_are_channels = first.samples_per_pixel > 1;
+  OCTO_RETURN_IF_ERROR(CheckSampleChannels(name, 0, first));
   if (samples_are_channels && c > 1) {
     return UnsupportedError(name + ": ImageJ stack with both channels=" + std::to_string(c) +
                             " and " + std::to_string(first.samples_per_pixel) +
@@ -409,6 +412,7 @@ Result<std::unique_ptr<VolumeSource>> OpenPlain(std::unique_ptr<TiffFile> file,
     return UnsupportedError(name + ": IFD " + std::to_string(planes[0]) + " has " + Dtype(first) +
                             " samples, which Octoscope cannot read");
   }
+  OCTO_RETURN_IF_ERROR(CheckSampleChannels(name, planes[0], first));
   for (int64_t p : planes) {
     OCTO_RETURN_IF_ERROR(CheckSamePage(*file, static_cast<int>(planes[0]), static_cast<int>(p)));
   }
@@ -512,13 +516,21 @@ Result<std::unique_ptr<VolumeSource>> OpenTiffStack(std::unique_ptr<TiffFile> fi
     }
     return OpenImageJ(std::move(file), *ij, options);
   }
-  if (first.dtype && first.samples_per_pixel == 1) {
-    const std::string metadata = first.software + "\n" + first.description;
+  const std::string metadata = first.software + "\n" + first.description;
+  const bool scanimage = ParseScanImageKeys(metadata).contains("SI.hChannels.channelSave");
+  if (scanimage && first.dtype && first.samples_per_pixel == 1) {
     if (std::optional<ScanImageLayout> si = ScanImageLayoutOf(metadata, file->ifd_count())) {
       return OpenScanImage(std::move(file), *si, options);
     }
   }
-  return OpenPlain(std::move(file), options);
+  if (!scanimage) return OpenPlain(std::move(file), options);
+  // ScanImage metadata that does not describe this file: say so rather than reinterpret quietly.
+  const std::string warning =
+      name + ": its ScanImage metadata does not fit the file (" +
+      std::to_string(file->ifd_count()) + " pages of " + std::to_string(first.samples_per_pixel) +
+      " samples); read as a plain TIFF stack instead: each page is a z plane";
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<VolumeSource> plain, OpenPlain(std::move(file), options));
+  return WithWarnings(std::move(plain), {warning});
 }
 
 Result<std::unique_ptr<VolumeSource>> OpenTiffStack(const std::filesystem::path& path,

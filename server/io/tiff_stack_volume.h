@@ -15,8 +15,8 @@
 //
 // Thread safety: OpenTiffStack is thread-safe; the returned source is (see volume_source.h).
 // Memory: a ReadSlab needs only the caller's slab plus TiffFile's one strip/tile of scratch.
-// Zero-copy: MappedPlane offers planes of uncompressed, native-order pages (TiffFile::MappedPlane)
-// and the contiguous images of > 4 GB ImageJ files in place, in a read-only mapping of the file.
+// Stored planes: FindStoredPlane locates planes of uncompressed, native-order pages
+// (TiffFile::StoredPlaneOffset) and the contiguous images of > 4 GB ImageJ files.
 #ifndef OCTOSCOPE_IO_TIFF_STACK_VOLUME_H_
 #define OCTOSCOPE_IO_TIFF_STACK_VOLUME_H_
 

@@ -1,12 +1,40 @@
 #include "io/volume_source.h"
 
-#include <sys/mman.h>
-#include <unistd.h>
-
 #include <cstdint>
 #include <string>
+#include <utility>
 
 namespace octoscope::io {
+namespace {
+
+// Forwards everything to the wrapped source; only its info (with the warnings added) is its own.
+class WarnedSource final : public VolumeSource {
+ public:
+  WarnedSource(std::unique_ptr<VolumeSource> source, std::vector<std::string> warnings)
+      : source_(std::move(source)), info_(source_->info()) {
+    for (std::string& w : warnings) info_.warnings.push_back(std::move(w));
+  }
+  const volume::VolumeInfo& info() const override { return info_; }
+  Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+    return source_->ReadSlab(channel, z0, nz, out);
+  }
+  std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
+    return source_->FindStoredPlane(channel, z);
+  }
+  int64_t PreferredSlabPlanes() const override { return source_->PreferredSlabPlanes(); }
+
+ private:
+  const std::unique_ptr<VolumeSource> source_;
+  volume::VolumeInfo info_;
+};
+
+}  // namespace
+
+std::unique_ptr<VolumeSource> WithWarnings(std::unique_ptr<VolumeSource> source,
+                                           std::vector<std::string> warnings) {
+  if (warnings.empty()) return source;
+  return std::make_unique<WarnedSource>(std::move(source), std::move(warnings));
+}
 
 uint64_t VolumeSource::SlabBytes(int64_t nz) const {
   const volume::VolumeInfo& i = info();
@@ -30,33 +58,6 @@ Status CheckSlabRequest(const volume::VolumeInfo& info, int channel, int64_t z0,
                                 " bytes, the slab needs " + std::to_string(want));
   }
   return Status::Ok();
-}
-
-LazyFileMapping::~LazyFileMapping() {
-  if (base_ != nullptr) {
-    ::munmap(const_cast<std::byte*>(base_), static_cast<size_t>(size_));
-  }
-}
-
-std::optional<std::span<const std::byte>> LazyFileMapping::View(uint64_t offset,
-                                                                uint64_t length) const {
-  if (offset > size_ || length > size_ - offset) return std::nullopt;
-  std::call_once(once_, [this] {
-    // An empty file cannot be mapped, nor one larger than the address space.
-    if (size_ == 0 || size_ > SIZE_MAX) return;
-    void* base = ::mmap(nullptr, static_cast<size_t>(size_), PROT_READ, MAP_SHARED, fd_, 0);
-    if (base != MAP_FAILED) base_ = static_cast<const std::byte*>(base);
-  });
-  if (base_ == nullptr) return std::nullopt;
-  if (length > 0) {
-    // Start reading the range in (a no-op for pages already cached). madvise wants a page-aligned
-    // start; the hint is best effort, so its result is ignored.
-    const uint64_t page = static_cast<uint64_t>(::sysconf(_SC_PAGESIZE));
-    const uint64_t start = offset / page * page;
-    (void)::madvise(const_cast<std::byte*>(base_) + start,
-                    static_cast<size_t>(offset + length - start), MADV_WILLNEED);
-  }
-  return std::span<const std::byte>(base_ + offset, static_cast<size_t>(length));
 }
 
 }  // namespace octoscope::io

@@ -1,27 +1,50 @@
 // VolumeSource: a multi-channel 3-D scan that can be read one z-slab of one channel at a time.
-// Files (OME-TIFF, TIFF stacks, slice folders, raw) and live acquisitions implement it, so the
-// octree builder consumes all of them the same way. Memory use of a read is bounded by the slab
-// the caller asks for (plus at most one decoded plane or tile row of the file), never by the file.
+// Files (OME-TIFF, TIFF stacks, slice folders, raw, OME-Zarr, Imaris) and live acquisitions
+// implement it, so the octree builder consumes all of them the same way. Memory use of a read is
+// bounded by the slab the caller asks for (plus at most one decoded plane or tile row of the file,
+// or the bounded chunk cache of a chunked format), never by the file.
 //
-// Sources whose file stores a plane exactly as ReadSlab would return it may also hand out a
-// zero-copy view of it (MappedPlane), backed by a read-only memory mapping of the file.
+// Sources whose file stores a plane exactly as ReadSlab would return it may also say where
+// (FindStoredPlane), so a caller can stream it through a small buffer of its own with positioned
+// reads. Files are never memory-mapped: an input may still be written (an acquisition in
+// progress), and a mapped file that shrinks turns the next access into SIGBUS for the whole
+// process, where a read returns an error ("the file is truncated").
 //
-// Thread safety: implementations are thread-safe: ReadSlab and MappedPlane may be called from
+// Thread safety: implementations are thread-safe: ReadSlab and FindStoredPlane may be called from
 // several threads at once (e.g. one builder thread per channel); info() never changes after
-// construction.
+// construction. PositionedFile reads are thread-safe.
 #ifndef OCTOSCOPE_IO_VOLUME_SOURCE_H_
 #define OCTOSCOPE_IO_VOLUME_SOURCE_H_
 
 #include <cstddef>
 #include <cstdint>
-#include <mutex>
+#include <memory>
 #include <optional>
 #include <span>
+#include <string>
+#include <vector>
 
 #include "util/status.h"
 #include "volume/volume_info.h"
 
 namespace octoscope::io {
+
+// An open file read with positioned reads (pread keeps no shared offset, so any number of threads
+// may read at once). A file that shrinks after it was opened gives a Corrupt error naming it
+// ("the file is truncated"), never a signal.
+class PositionedFile {
+ public:
+  virtual ~PositionedFile() = default;
+  // Reads out.size() bytes at `offset`. Errors name the file.
+  virtual Status ReadBytes(uint64_t offset, std::span<std::byte> out) const = 0;
+};
+
+// A plane stored as is: bytes [offset, offset + SlabBytes(1)) of `file` are exactly what
+// ReadSlab returns for it.
+struct StoredPlane {
+  std::shared_ptr<const PositionedFile> file;  // Keeps the file open while the caller reads.
+  uint64_t offset = 0;
+};
 
 class VolumeSource {
  public:
@@ -34,13 +57,10 @@ class VolumeSource {
   // REQUIRES: CheckSlabRequest(info(), channel, z0, nz, out.size()).ok()
   virtual Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) = 0;
 
-  // A zero-copy view of plane `z` of `channel`: exactly the SlabBytes(1) bytes ReadSlab(channel,
-  // z, 1, ...) would produce (info().dtype, native byte order, aligned for the sample type), when
-  // the file stores the plane that way; nullopt otherwise (and for out-of-range requests), in
-  // which case callers use ReadSlab. The view stays valid while the source lives.
-  // Caveat of every mapping: if another process truncates the file while it is mapped, touching
-  // the lost pages raises SIGBUS. Sources map only files whose size they validated at open.
-  virtual std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const {
+  // Where plane `z` of `channel` lies in a file when the file stores exactly the SlabBytes(1) bytes
+  // ReadSlab(channel, z, 1, ...) would produce (info().dtype, native byte order) as one run;
+  // nullopt otherwise (and for out-of-range requests), in which case callers use ReadSlab.
+  virtual std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const {
     (void)channel;
     (void)z;
     return std::nullopt;
@@ -55,30 +75,10 @@ class VolumeSource {
   uint64_t SlabBytes(int64_t nz) const;
 };
 
-// A read-only, shared memory mapping of a whole file, created on first use, for sources that
-// implement MappedPlane. Unmapped on destruction.
-// Invariant: once mapped, the mapping covers exactly the `size` bytes given at construction.
-// Thread safety: thread-safe; the first View maps the file (once, whatever the thread count).
-class LazyFileMapping {
- public:
-  // `fd`: a descriptor of the file, open at least until the first View returns; `size`: the file
-  // size the caller validated (mapping past the file's end would give SIGBUS on access).
-  LazyFileMapping(int fd, uint64_t size) : fd_(fd), size_(size) {}
-  ~LazyFileMapping();
-  LazyFileMapping(const LazyFileMapping&) = delete;
-  LazyFileMapping& operator=(const LazyFileMapping&) = delete;
-
-  // Bytes [offset, offset + length) of the file; nullopt when the range is not inside the file
-  // or the file cannot be mapped. Advises the kernel to read the range ahead (MADV_WILLNEED), so
-  // a file not yet in the page cache streams in while the caller works on an earlier view.
-  std::optional<std::span<const std::byte>> View(uint64_t offset, uint64_t length) const;
-
- private:
-  const int fd_;
-  const uint64_t size_;
-  mutable std::once_flag once_;
-  mutable const std::byte* base_ = nullptr;  // Written once under once_; nullptr: not mappable.
-};
+// `source` with `warnings` appended to its info().warnings; reads are forwarded unchanged. For
+// readers that fall back to another reader and must say so.
+std::unique_ptr<VolumeSource> WithWarnings(std::unique_ptr<VolumeSource> source,
+                                           std::vector<std::string> warnings);
 
 // Validates a ReadSlab request; implementations call it first and return its error.
 Status CheckSlabRequest(const volume::VolumeInfo& info, int channel, int64_t z0, int64_t nz,

@@ -1,9 +1,12 @@
 // VolumeStats: per-channel minimum, maximum and mean of every voxel of a VolumeSource, in the
-// file's own units. When the source offers its planes in place (VolumeSource::MappedPlane), they
-// are summed there, zero-copy, by a few threads, each summing its share of the (z, c) planes into
-// its own per-channel sums, merged at the end. Otherwise the source is streamed slab by slab
-// (memory: two slabs; chunk-aligned for chunked sources), one thread reading while the calling
-// thread sums.
+// file's own units. When the file stores the planes as they are read (VolumeSource::
+// FindStoredPlane), a few threads each read their share of the (z, c) planes piece by piece into a
+// small buffer that stays in the CPU cache while it is summed (as `cat` copies through one small
+// buffer), into their own per-channel sums, merged at the end. Otherwise (compressed or chunked
+// files: OME-Zarr, Imaris, compressed TIFF) the source is streamed slab by slab (memory: two
+// slabs; whole chunk depths for sources stored in chunks along z), one thread reading while the
+// calling thread sums. Files are read, never mapped: a file truncated meanwhile gives an error
+// naming it, not SIGBUS.
 // Integer means are exact (integer sums, one division); float means use compensated (Neumaier)
 // summation, accurate to a few units in the last place of a double. NaNs are counted, not summed.
 //
@@ -43,11 +46,14 @@ struct StatsOptions {
   uint64_t max_aligned_slab_bytes = uint64_t{256} << 20;
   // Called after each slab with (planes done, planes total) over all channels.
   std::function<void(uint64_t, uint64_t)> progress;
-  // Threads summing mapped planes in place, the calling thread included; 0: the hardware's
-  // concurrency, at most 4 (a couple of cores already outrun the memory bus).
+  // Threads of the direct path, the calling thread included; 0: the hardware's concurrency, at
+  // most 4 (a couple of cores already outrun the memory bus).
   int threads = 0;
-  // Use MappedPlane views when the source offers them; false forces the streaming path.
-  bool zero_copy = true;
+  // Bytes per read of the direct path (rounded down to whole samples): small enough to stay in
+  // the L2 cache while summed.
+  uint64_t piece_bytes = uint64_t{128} << 10;
+  // Read stored planes directly when the source locates them; false forces the streaming path.
+  bool direct = true;
 };
 
 Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions& options);

@@ -1,10 +1,13 @@
 #include "octree/brick_geometry.h"
 
 #include <algorithm>
+#include <array>
 #include <initializer_list>
 #include <optional>
 #include <string_view>
+#include <vector>
 
+#include "octree/node_encoding.h"
 #include "util/checked_math.h"
 
 namespace octoscope::octree {
@@ -305,6 +308,59 @@ std::string BrickGeometry::ToString() const {
               ", brick ", Str(brick_size_[0]), "x", Str(brick_size_[1]), "x", Str(brick_size_[2]),
               " (+1 apron), ", Str(channels_), " ch x ", Str(bytes_per_sample_), " B, levels 0..",
               Str(root_level_)});
+}
+
+uint64_t CompleteTreeStoredVoxels(const Vec3& volume_size, const Vec3& brick_size) {
+  BrickGeometry::Params params;
+  params.volume_size = volume_size;
+  params.brick_size = brick_size;
+  auto geometry = BrickGeometry::Create(params);
+  if (!geometry.ok()) return 0;
+  uint64_t nodes = 0;
+  for (int level = 0; level <= geometry->root_level(); ++level) {
+    const Box b = geometry->NonVirtualNodes(level);
+    nodes += static_cast<uint64_t>(b.Extent(0)) * b.Extent(1) * b.Extent(2);
+  }
+  const Vec3 stored = geometry->stored_size();
+  return nodes * static_cast<uint64_t>(stored[0] * stored[1] * stored[2]);
+}
+
+Vec3 AutoBrickSize(const Vec3& volume_size, int64_t max_edge) {
+  max_edge = std::max<int64_t>(2, max_edge - max_edge % 2);
+  // Candidates per axis: the axis's own size rounded up to even when it is below max_edge, and
+  // every even size in [max_edge / 2, max_edge] that is not larger than needed.
+  std::array<std::vector<int64_t>, 3> candidates;
+  for (int a = 0; a < 3; ++a) {
+    const int64_t n = std::max<int64_t>(1, volume_size[a]);
+    const int64_t own = std::max<int64_t>(2, n + n % 2);
+    if (own <= max_edge) candidates[a].push_back(own);
+    for (int64_t b = std::max<int64_t>(2, max_edge / 2 + (max_edge / 2) % 2); b <= max_edge;
+         b += 2) {
+      if (b < own) candidates[a].push_back(b);
+    }
+    if (candidates[a].empty()) candidates[a].push_back(own);
+  }
+  Vec3 best = kDefaultBrickSize;
+  uint64_t best_voxels = 0;
+  for (int64_t bx : candidates[0]) {
+    for (int64_t by : candidates[1]) {
+      for (int64_t bz : candidates[2]) {
+        const Vec3 brick{bx, by, bz};
+        BrickGeometry::Params params;
+        params.volume_size = volume_size;
+        params.brick_size = brick;
+        auto geometry = BrickGeometry::Create(params);
+        if (!geometry.ok() || !FitsDeviceEncoding(*geometry)) continue;
+        const uint64_t voxels = CompleteTreeStoredVoxels(volume_size, brick);
+        const bool larger = bx * by * bz > best[0] * best[1] * best[2];
+        if (best_voxels == 0 || voxels < best_voxels || (voxels == best_voxels && larger)) {
+          best = brick;
+          best_voxels = voxels;
+        }
+      }
+    }
+  }
+  return best;
 }
 
 }  // namespace octoscope::octree

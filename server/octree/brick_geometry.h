@@ -114,6 +114,18 @@ struct NodeKey {
   std::string ToString() const;
 };
 
+// The brick size a volume gets when the user does not choose one: per axis an even size of at
+// most `max_edge` (64 by default) that minimises the stored bytes of the complete tree (every
+// non-virtual node of every level with a brick, aprons included) — the padding a lossless tree
+// pays. A thin stack gets shallow bricks (a 30-plane stack: 30 deep, not 64; a single plane: 2),
+// and an axis whose size is not a multiple of 64 gets the even size in [32, 64] (or the axis's
+// own size, when smaller) that leaves the least padding; ties go to the larger brick. Only sizes
+// whose trees fit 32-bit node ids are considered; falls back to kDefaultBrickSize.
+Vec3 AutoBrickSize(const Vec3& volume_size, int64_t max_edge = 64);
+// Stored voxels of the complete tree over `volume_size` in bricks of `brick_size` (every
+// non-virtual node of every level), or 0 when the geometry is invalid.
+uint64_t CompleteTreeStoredVoxels(const Vec3& volume_size, const Vec3& brick_size);
+
 // The octant (0..7) a node occupies inside its parent: bit 0 = index.x odd, bit 1 = y, bit 2 = z.
 int OctantOf(const NodeKey& key);
 // The child in `octant` (0..7). REQUIRES: key.level >= 1, 0 <= octant < 8.

@@ -525,6 +525,27 @@ Status Octree::ReadBrick(uint32_t id, std::span<std::byte> out) const {
   return Status::Ok();
 }
 
+Status Octree::TryReadBrick(uint32_t id, std::span<std::byte> out, uint64_t* page) const {
+  if (out.size() != geometry_.brick_bytes()) {
+    return InvalidArgumentError("octree: TryReadBrick buffer of " + std::to_string(out.size()) +
+                                " bytes, brick has " + std::to_string(geometry_.brick_bytes()));
+  }
+  std::shared_lock<std::shared_mutex> lock(mu_);
+  if (!IsLiveId(id)) return NotFoundError("octree: node " + std::to_string(id) + " does not exist");
+  const uint32_t brick = nodes_[id].brick;
+  if (brick == 0) return NotFoundError("octree: node " + std::to_string(id) + " has no brick");
+  std::optional<BrickHandle> handle = pool_.TryPin(brick);
+  if (!handle.has_value()) {
+    if (page != nullptr) *page = pool_.PageOf(brick);
+    return UnavailableError("octree: the page of node " + std::to_string(id) +
+                            "'s brick is not in RAM");
+  }
+  std::lock_guard<std::mutex> brick_lock(BrickLock(brick));
+  std::span<const std::byte> src = std::as_const(*handle).data();
+  std::memcpy(out.data(), src.data(), src.size());
+  return Status::Ok();
+}
+
 OctreeStats Octree::stats() const {
   OctreeStats s;
   {

@@ -55,11 +55,12 @@
 //
 // Thread safety: Insert may be called from several threads at once; inserts are serialised
 // internally by one mutex (to use several cores, give one insert several channels and a
-// WorkerPool). GetNode, ReadBrick, stats, PruningError, DrainChanges, Save and Flush may be called
-// at any time from any thread: the node table is guarded by a shared_mutex (readers shared, the
-// inserting thread exclusive for each mutation, never while holding a page pin), brick bytes by
-// striped mutexes, and a new brick is published only when it is complete, so a reader always sees
-// a consistent node and an untorn brick.
+// WorkerPool). GetNode, ReadBrick, TryReadBrick, stats, PruningError, SubscribeChanges, Save and
+// Flush may be called at any time from any thread: the node table is guarded by a shared_mutex
+// (readers shared, the inserting thread exclusive for each mutation, never while holding a page
+// pin), brick bytes by striped mutexes, and a new brick is published only when it is complete, so
+// a reader always sees a consistent node and an untorn brick. Each change-log event is appended
+// after its change is visible to readers (as ChangeLog requires).
 #ifndef OCTOSCOPE_OCTREE_OCTREE_H_
 #define OCTOSCOPE_OCTREE_OCTREE_H_
 
@@ -190,8 +191,19 @@ class Octree {
   // does not exist or has no brick; kInvalidArgument when out.size() != brick_bytes. May wait for
   // a page load (PageCache::Pin).
   Status ReadBrick(uint32_t id, std::span<std::byte> out) const;
+  // ReadBrick for threads that must never wait for the disk (a render thread): kUnavailable when
+  // the brick's page is not in RAM now (nothing copied; *page, when given, says which page to
+  // prefetch). Other errors as ReadBrick.
+  Status TryReadBrick(uint32_t id, std::span<std::byte> out, uint64_t* page = nullptr) const;
+  // The brick pool's page cache (for prefetching the pages TryReadBrick reports).
+  paging::PageCache* page_cache() const { return cache_; }
 
-  std::vector<NodeChange> DrainChanges() { return changes_.Drain(); }
+  // A new consumer of the change log (change_log.h): it reports the node changes from now on, or
+  // tells the consumer to resynchronise when it fell more than `max_backlog` events behind. Walk
+  // the tree (GetNode from the root) after subscribing: earlier changes are not in the log.
+  ChangeSubscription SubscribeChanges(size_t max_backlog = kDefaultChangeBacklog) {
+    return changes_.Subscribe(max_backlog);
+  }
   OctreeStats stats() const;  // O(nodes): scans the node table.
   // Per channel, the largest |voxel - shown value| over every valid voxel the tree represents by
   // an average instead of its own value (a pruned brick or subtree), in stored units: 0 for

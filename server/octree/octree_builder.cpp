@@ -19,8 +19,9 @@ bool IsIdentity(const volume::ValueMap& map) {
 
 }  // namespace
 
-BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, int64_t brick_height,
-                             int64_t brick_depth, int bytes_per_stored_sample, uint64_t ram_bytes) {
+BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, const Vec3& brick_size,
+                             int bytes_per_stored_sample, uint64_t ram_bytes) {
+  const int64_t brick_height = brick_size[1], brick_depth = brick_size[2];
   BuildBudget b;
   b.slab_bytes = std::min<uint64_t>(ram_bytes / 16, uint64_t{64} << 20);
   const uint64_t layer = info.PlaneVoxels() * static_cast<uint64_t>(info.channel_count()) *
@@ -36,6 +37,14 @@ BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, int64_t brick_heigh
                        static_cast<uint64_t>(std::min<int64_t>(brick_height, info.size[1]));
   const uint64_t reserved = b.slab_bytes + (b.staging_bytes > 0 ? b.staging_bytes : row);
   b.page_bytes = ram_bytes > reserved ? ram_bytes - reserved : 0;
+  const auto bricks_across = [&](int a) {
+    return static_cast<uint64_t>((info.size[a] + brick_size[a] - 1) / brick_size[a]);
+  };
+  const uint64_t stored_brick = static_cast<uint64_t>((brick_size[0] + 2) * (brick_size[1] + 2) *
+                                                      (brick_size[2] + 2)) *
+                                static_cast<uint64_t>(info.channel_count()) *
+                                static_cast<uint64_t>(bytes_per_stored_sample);
+  b.working_set_bytes = bricks_across(0) * bricks_across(1) * stored_brick * 4 / 3;
   return b;
 }
 
@@ -214,7 +223,11 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
   if (status.ok() && !ingest->complete()) {
     status = InternalError("build ended with planes missing from the octree");
   }
-  if (status.ok()) report(items);
+  if (status.ok()) {
+    report(items);  // A callback that throws now still fails the build.
+    std::lock_guard lock(mutex);
+    status = first_error;
+  }
   return status;
 }
 

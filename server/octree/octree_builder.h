@@ -67,9 +67,12 @@ struct BuildBudget {
   uint64_t slab_bytes = 0;
   uint64_t staging_bytes = 0;
   uint64_t page_bytes = 0;
+  // Pages construction touches repeatedly: one layer of leaf bricks and a third of that for their
+  // parents. With page_bytes below it, pages are written and read back (same tree, slower).
+  uint64_t working_set_bytes = 0;
 };
-BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, int64_t brick_height,
-                             int64_t brick_depth, int bytes_per_stored_sample, uint64_t ram_bytes);
+BuildBudget SplitBuildBudget(const volume::VolumeInfo& info, const Vec3& brick_size,
+                             int bytes_per_stored_sample, uint64_t ram_bytes);
 
 // Planes per read for `options`: the largest divisor of the brick depth whose slabs fit
 // 2 * threads times into the budget; at least 1.

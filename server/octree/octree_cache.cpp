@@ -1,10 +1,15 @@
 #include "octree/octree_cache.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cinttypes>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -24,6 +29,7 @@ constexpr char kManifestName[] = "MANIFEST";
 constexpr char kPoolName[] = "octree.pool";
 constexpr char kNodesName[] = "octree.nodes";
 constexpr char kBuildingName[] = "BUILDING";
+constexpr char kLockName[] = "LOCK";
 constexpr char kMagic[] = "octoscope-octree-cache";
 constexpr uint64_t kMaxManifestBytes = 1 << 20;
 constexpr uint64_t kMaxNodesBytes = uint64_t{16} << 30;
@@ -71,7 +77,99 @@ Status HashFile(const fs::path& file, const std::string& relative, uint64_t& has
   return Status::Ok();
 }
 
+// The pid an exclusive holder recorded in LOCK ("pid 1234\n"), for messages; "" when unknown.
+std::string RecordedHolder(int fd) {
+  char text[32] = {};
+  const ssize_t n = ::pread(fd, text, sizeof text - 1, 0);
+  if (n <= 0) return "";
+  std::string_view line(text, static_cast<size_t>(n));
+  line = line.substr(0, line.find('\n'));
+  if (!line.starts_with("pid ") || !ParseInt64(line.substr(4))) return "";
+  return std::string(line);
+}
+
 }  // namespace
+
+Result<std::unique_ptr<CacheLock>> CacheLock::Acquire(const fs::path& dir, Mode mode) {
+  const fs::path path = dir / kLockName;
+  int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0 && (errno == EROFS || errno == EACCES)) {
+    // A directory we cannot write: share it without a lock if nobody could write it either.
+    fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0 && mode == Mode::kShared && (errno == ENOENT)) {
+      return std::unique_ptr<CacheLock>(new CacheLock(dir, -1, mode));
+    }
+  }
+  if (fd < 0) {
+    return IoError(path.string() +
+                   ": cannot open the cache directory's lock file: " + std::strerror(errno));
+  }
+  std::unique_ptr<CacheLock> lock(new CacheLock(dir, fd, mode));
+  const int operation = (mode == Mode::kShared ? LOCK_SH : LOCK_EX) | LOCK_NB;
+  int result;
+  do {
+    result = ::flock(fd, operation);
+  } while (result != 0 && errno == EINTR);
+  if (result != 0) {
+    if (errno != EWOULDBLOCK) {
+      return IoError(path.string() + ": cannot lock the cache directory: " + std::strerror(errno));
+    }
+    // A shared request fails only against an exclusive holder, which is building.
+    if (mode == Mode::kShared) {
+      const std::string holder = RecordedHolder(fd);
+      return UnavailableError(dir.string() +
+                              ": the cache directory is locked by another process that is "
+                              "building into it" +
+                              (holder.empty() ? "" : " (" + holder + ")") +
+                              "; wait until it has finished, or use another cache directory");
+    }
+    return UnavailableError(dir.string() +
+                            ": the cache directory is in use by another process; it cannot be "
+                            "built into until that process has finished; use another cache "
+                            "directory");
+  }
+  if (mode == Mode::kExclusive) lock->RecordHolder();
+  return lock;
+}
+
+CacheLock::~CacheLock() {
+  if (fd_ >= 0) ::close(fd_);  // Releases the lock.
+}
+
+Status CacheLock::MakeExclusive() {
+  if (mode_ == Mode::kExclusive) return Status::Ok();
+  if (fd_ < 0) {
+    return UnavailableError(dir_.string() +
+                            ": the cache directory is read-only; it cannot be built into");
+  }
+  int result;
+  do {
+    result = ::flock(fd_, LOCK_EX | LOCK_NB);
+  } while (result != 0 && errno == EINTR);
+  if (result != 0) {
+    const int err = errno;
+    // flock(2) dropped the shared lock before failing: this object no longer holds anything.
+    ::close(fd_);
+    fd_ = -1;
+    if (err != EWOULDBLOCK) {
+      return IoError(dir_.string() + ": cannot lock the cache directory: " + std::strerror(err));
+    }
+    return UnavailableError(dir_.string() +
+                            ": the cache directory is in use by another process (it reads the "
+                            "octree stored there), so it cannot be rebuilt until that process "
+                            "has finished; use another cache directory");
+  }
+  mode_ = Mode::kExclusive;
+  RecordHolder();
+  return Status::Ok();
+}
+
+void CacheLock::RecordHolder() {
+  // Informational only (for the messages of processes that find the directory locked): a failed
+  // write changes nothing about the lock.
+  const std::string text = "pid " + std::to_string(::getpid()) + "\n";
+  if (::ftruncate(fd_, 0) == 0) (void)!::pwrite(fd_, text.data(), text.size(), 0);
+}
 
 Result<SourceIdentity> ComputeSourceIdentity(const fs::path& input) {
   SourceIdentity id;
@@ -256,6 +354,9 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
   if (ec) return IoError(dir.string() + ": cannot create the cache directory: " + ec.message());
   std::unique_ptr<OctreeCache> cache(new OctreeCache());
   cache->dir_ = dir;
+  // Shared first: enough to reuse a complete cache alongside other readers; made exclusive below
+  // only to rebuild.
+  OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kShared));
 
   OctreeOptions options;
   options.brick_size = params.brick_size;
@@ -325,6 +426,8 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
     return InternalError("value mapping for the wrong number of channels");
   }
   options.value_range = mapping.value_range;
+  // Nothing has been changed yet; from here on the directory is ours alone.
+  OCTO_RETURN_IF_ERROR(cache->lock_->MakeExclusive());
   fs::remove(manifest_path, ec);
   fs::remove(dir / kNodesName, ec);
   OCTO_RETURN_IF_ERROR(SyncDirectory(dir));

@@ -7,12 +7,19 @@
 //   octree.pool     the brick pool's pages (paging::FilePageStore).
 //   octree.nodes    the node table (Octree::Save), temp-then-rename with fsync.
 //   BUILDING        present while a build runs (diagnostics; its absence proves nothing).
+//   LOCK            the file a process locks (flock) while it builds or serves the directory.
 // A build killed at any moment (SIGKILL, power loss) leaves no complete MANIFEST, so the next
 // open detects an incomplete cache and starts over; a complete cache whose source identity and
 // build parameters match is reopened without rebuilding anything.
 //
+// Locking: an OctreeCache holds a lock on its directory for its whole lifetime: shared while it
+// serves a complete cache (several processes may), exclusive while it builds one (nobody else may
+// use the directory). Open never clears, rebuilds or serves a directory another process holds in
+// a conflicting way: it fails at once (kUnavailable, naming the directory) instead of waiting.
+// The kernel releases the lock when the process ends, however it ends.
+//
 // Thread safety: an OctreeCache is used by one owning thread; the Octree it holds has its own
-// contract (octree.h).
+// contract (octree.h). CacheLock objects are independent of each other.
 #ifndef OCTOSCOPE_OCTREE_OCTREE_CACHE_H_
 #define OCTOSCOPE_OCTREE_OCTREE_CACHE_H_
 
@@ -73,13 +80,47 @@ struct CacheManifest {
   bool Matches(const SourceIdentity& source, const CacheParams& params) const;
 };
 
+// An advisory lock (flock(2)) on the LOCK file of a cache directory. Locks are per open file
+// description, so two CacheLocks conflict even within one process. Released on destruction.
+class CacheLock {
+ public:
+  enum class Mode { kShared, kExclusive };
+
+  // Takes the lock on `dir`/LOCK (created if missing) without waiting. Errors: kUnavailable,
+  // naming `dir` and the holder's pid where known, when another holder's lock conflicts; kIoError
+  // when LOCK cannot be opened. A directory where LOCK cannot be created (read-only media) can
+  // be shared without a lock: nobody can build into it anyway.
+  static Result<std::unique_ptr<CacheLock>> Acquire(const std::filesystem::path& dir, Mode mode);
+  ~CacheLock();
+  CacheLock(const CacheLock&) = delete;
+  CacheLock& operator=(const CacheLock&) = delete;
+
+  Mode mode() const { return mode_; }
+  // Converts a shared lock to an exclusive one without waiting. kUnavailable when another holder
+  // shares the directory; the lock is then no longer held at all (flock(2) drops it first), so
+  // the caller must give up the directory.
+  Status MakeExclusive();
+
+ private:
+  CacheLock(std::filesystem::path dir, int fd, Mode mode)
+      : dir_(std::move(dir)), fd_(fd), mode_(mode) {}
+  // Records this process as the exclusive holder (its pid in LOCK, for others' messages).
+  void RecordHolder();
+
+  std::filesystem::path dir_;
+  int fd_ = -1;  // -1: a read-only directory shared without a lock.
+  Mode mode_;
+};
+
 class OctreeCache {
  public:
   // Opens the cache in `dir` for `source` + `params` with a page cache of `ram_bytes`:
   // a complete matching cache is loaded (reused() == true, nothing rebuilt, `derive` not called);
   // anything else (no cache, an incomplete one, another source, other parameters) is cleared,
   // `derive` computes the value mapping, and an empty octree is created for building
-  // (reused() == false). Never serves an incomplete cache.
+  // (reused() == false). Never serves an incomplete cache. Reuse holds the directory's lock
+  // shared, building holds it exclusive (taken before anything is cleared, after `derive`);
+  // kUnavailable when another process holds it in a conflicting way (see above).
   static Result<std::unique_ptr<OctreeCache>> Open(
       const std::filesystem::path& dir, const SourceIdentity& source, const CacheParams& params,
       uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive);
@@ -106,6 +147,8 @@ class OctreeCache {
  private:
   OctreeCache() = default;
 
+  // Declared first, destroyed last: the lock outlives every file access below.
+  std::unique_ptr<CacheLock> lock_;
   std::filesystem::path dir_;
   bool reused_ = false;
   std::string rebuild_reason_;

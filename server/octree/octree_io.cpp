@@ -240,7 +240,6 @@ Result<std::unique_ptr<Octree>> Octree::Load(std::istream& in, paging::PageCache
   if (r.Get<uint32_t>() != kEndMarker || !r.ok()) {
     return CorruptError("octree node table: missing end marker");
   }
-  tree->changes_.Drain();  // A loaded tree starts with an empty change log.
   return tree;
 }
 

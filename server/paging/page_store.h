@@ -8,7 +8,9 @@
 //    the medium (an index whose byte offset overflows 63 bits is kOutOfRange).
 //  - A page that was never written reads as all zeros (so a fresh store is a zero-filled array).
 //  - page_count() is one past the highest page ever written (0 for an empty store); for a store
-//    reopened from a medium it is the number of (possibly partial) pages the medium holds.
+//    reopened from a medium it is the number of (possibly partial) pages the medium holds. So a
+//    page at or beyond page_count() reads as zeros: PageCache relies on this and zero-fills such
+//    pages itself instead of reading them (a store must never under-report page_count()).
 //  - Write() is not durable until Sync() returns OK (e.g. fsync for files).
 //  - Read()/Write() take spans of exactly page_bytes(); any other size is kInvalidArgument.
 //

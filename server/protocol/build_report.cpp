@@ -19,7 +19,7 @@ std::string BuildReportJson(const BuildReport& r) {
   j["lossless"] =
       std::all_of(r.pruning_error.begin(), r.pruning_error.end(), [](double e) { return e == 0; });
   j["pruning_error"] = r.pruning_error;
-  j["pages_read_mb"] = r.pages_read_mb;
+  j["pages_reread_mb"] = r.pages_reread_mb;
   j["pages_written_mb"] = r.pages_written_mb;
   j["seconds"] = r.seconds;
   j["mb_per_s"] = r.mb_per_s;

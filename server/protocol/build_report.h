@@ -28,8 +28,10 @@ struct BuildReport {
   // (Octree::PruningError through the channel's value map); all 0 when lossless.
   std::vector<double> pruning_error;
   std::vector<int64_t> brick_size;  // The brick size the cache uses (x, y, z).
-  double pages_read_mb = 0;         // Brick pages read back from the pool file (re-reads).
-  double pages_written_mb = 0;      // Brick pages written to the pool file.
+  // Brick pages read back from the pool file (pages never written are not read: any read is the
+  // working set not fitting the budget).
+  double pages_reread_mb = 0;
+  double pages_written_mb = 0;  // Brick pages written to the pool file (write-backs).
 };
 
 std::string BuildReportJson(const BuildReport& report);

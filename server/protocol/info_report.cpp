@@ -59,6 +59,7 @@ std::string InfoReportJson(const volume::VolumeInfo& info,
   j["time_points"] = info.time_points;
   j["level"] = info.level;
   j["level_count"] = info.level_count;
+  j["warnings"] = info.warnings;
   if (stats) {
     nlohmann::json mins = nlohmann::json::array(), maxs = nlohmann::json::array(),
                    means = nlohmann::json::array(), nans = nlohmann::json::array();

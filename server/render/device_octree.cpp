@@ -60,6 +60,7 @@ struct DeviceOctree::Impl {
   std::unordered_map<uint32_t, uint32_t> group_owner;  // Mirrored child group -> parent id.
   std::set<uint32_t> to_encode;                        // Ids to (re-)encode in this pass.
   std::unordered_map<uint32_t, octree::NodeSnapshot> snapshots;  // Read during this pass.
+  octree::ChangeSubscription changes;  // This mirror's cursor into the octree's change log.
 
   // --- Brick buffer. ---
   std::vector<ClMem> bricks;
@@ -168,7 +169,7 @@ struct DeviceOctree::Impl {
     uint32_t group = snap.child_group;
     if (group != 0) {
       // Point at the group only once all 8 children are written in the mirror AS THIS NODE'S
-      // children: a reused group whose old children's deletions are not drained yet still looks
+      // children: a reused group whose old children's deletions are not polled yet still looks
       // live, but for another parent's keys.
       bool all_live = uint64_t{group} * 8 + 7 < capacity_nodes();
       for (uint32_t o = 0; all_live && o < 8; ++o) {
@@ -230,6 +231,52 @@ struct DeviceOctree::Impl {
       Encode(*snap);
     }
     snapshots.clear();
+  }
+
+  // Reads every node reachable from the root now (by child group) into `snapshots`. A node
+  // deleted while we walk is skipped, a group reused meanwhile may be reached twice (read once):
+  // the events of both follow at the next poll.
+  void WalkTree() {
+    std::vector<uint32_t> queue = {0};
+    for (size_t i = 0; i < queue.size(); ++i) {
+      if (snapshots.count(queue[i]) != 0) continue;
+      std::optional<octree::NodeSnapshot> snap = tree->GetNode(queue[i]);
+      if (!snap.has_value()) continue;
+      if (snap->has_children()) {
+        for (uint32_t o = 0; o < 8; ++o) queue.push_back(snap->child_group * 8 + o);
+      }
+      snapshots.emplace(snap->id, std::move(*snap));
+    }
+  }
+
+  // Marks every walked node live with its key and queues it for encoding (after WalkTree).
+  void TakeWalk() {
+    for (const auto& [id, snap] : snapshots) {
+      EnsureCapacity(id);
+      live[id] = 1;
+      key_of[id] = snap.key;
+      to_encode.insert(id);
+    }
+  }
+
+  // The subscription fell behind and events were dropped: make the mirror equal to the tree
+  // again from a fresh walk. Entries the walk did not reach are gone (or their creation events
+  // follow); resident bricks that still belong to their node may have changed unseen, so they
+  // are re-uploaded first like stale ones (still showing their previous bytes meanwhile).
+  void Resynchronise() {
+    WalkTree();
+    for (uint64_t id = 0; id < capacity_nodes(); ++id) {
+      if (live[id] != 0 && snapshots.count(static_cast<uint32_t>(id)) == 0) {
+        NodeGone(static_cast<uint32_t>(id));
+      }
+    }
+    for (const auto& [id, snap] : snapshots) {
+      if (const auto it = slot_of.find(id);
+          it != slot_of.end() && snap.has_brick() && slot_key[it->second] == snap.key) {
+        stale.insert(id);
+      }
+    }
+    TakeWalk();
   }
 
   // Sends the dirty entries to the device (or the whole mirror into a new buffer after growth).
@@ -294,6 +341,9 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
   if (options.request_capacity == 0) {
     return InvalidArgumentError("DeviceOctree: request_capacity must be > 0");
   }
+  if (options.change_backlog == 0) {
+    return InvalidArgumentError("DeviceOctree: change_backlog must be > 0");
+  }
   const octree::BrickGeometry& geometry = octree->geometry();
   std::unique_ptr<DeviceOctree> self(new DeviceOctree());
   self->octree_ = octree;
@@ -355,22 +405,11 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
                         context->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
   OCTO_RETURN_IF_ERROR(m.Fill(m.slot_used_buffer, slot_count * 4));
 
-  // Drain first so that events of what the walk already sees are not replayed later as news
-  // (replaying them would be harmless but costly); then walk the tree from the root by id.
-  (void)octree->DrainChanges();
-  std::vector<uint32_t> queue = {0};
-  for (size_t i = 0; i < queue.size(); ++i) {
-    std::optional<octree::NodeSnapshot> snap = octree->GetNode(queue[i]);
-    if (!snap.has_value()) continue;  // Deleted while we walk: its event follows.
-    m.EnsureCapacity(snap->id);
-    m.live[snap->id] = 1;
-    m.key_of[snap->id] = snap->key;
-    m.to_encode.insert(snap->id);
-    if (snap->has_children()) {
-      for (uint32_t o = 0; o < 8; ++o) queue.push_back(snap->child_group * 8 + o);
-    }
-    m.snapshots.emplace(snap->id, std::move(*snap));
-  }
+  // Subscribe first, then walk: every change the walk may miss is delivered by the subscription
+  // (a change it already saw may be replayed, which is harmless).
+  m.changes = octree->SubscribeChanges(options.change_backlog);
+  m.WalkTree();
+  m.TakeWalk();
   m.EnsureCapacity(0);
   m.EncodePending();
   OCTO_RETURN_IF_ERROR(m.Flush(nullptr));
@@ -381,7 +420,9 @@ DeviceOctree::~DeviceOctree() = default;
 
 Status DeviceOctree::Sync(SyncStats* stats) {
   Impl& m = *impl_;
-  const std::vector<octree::NodeChange> changes = octree_->DrainChanges();
+  octree::ChangeBatch batch = m.changes.Poll();
+  if (batch.resync) m.Resynchronise();
+  const std::vector<octree::NodeChange>& changes = batch.events;
   // Apply liveness in event order (a delete and a re-creation of one id in one window both
   // count); node contents are read now, at least as new as the events.
   for (const octree::NodeChange& change : changes) {
@@ -413,6 +454,7 @@ Status DeviceOctree::Sync(SyncStats* stats) {
   OCTO_RETURN_IF_ERROR(m.Flush(&written));
   if (stats != nullptr) {
     stats->changes = changes.size();
+    stats->resynchronised = batch.resync;
     stats->entries_written = written;
     stats->stale_bricks = m.stale.size();
   }

@@ -4,13 +4,16 @@
 //
 // Device data (layouts: kernels/node_format.h, docs/octree_format.md "Device node buffer"):
 //  * NODE BUFFER: one entry per node id (NodeWords(C) uint32 words), kept as a host mirror plus a
-//    device buffer. Sync() drains the octree's change log and rewrites only the entries that
-//    changed (created, updated or deleted ids, and the residency bits of nodes whose slot
-//    changed), as a few coalesced clEnqueueWriteBuffer ranges. The buffer grows (reallocated,
-//    contents copied) when the octree uses a higher child group.
+//    device buffer. Create() subscribes to the octree's change log (its own cursor; other
+//    mirrors and consumers have theirs), then walks the tree. Sync() polls the subscription and
+//    rewrites only the entries that changed (created, updated or deleted ids, and the residency
+//    bits of nodes whose slot changed), as a few coalesced clEnqueueWriteBuffer ranges; when the
+//    mirror fell more than `change_backlog` events behind (the log dropped them), Sync walks the
+//    tree again instead and rewrites what differs. The buffer grows (reallocated, contents
+//    copied) when the octree uses a higher child group.
 //    Invariant: an entry's child group is non-zero only when all 8 children's entries are
-//    already written (a parent whose new group appeared after the drain is encoded without
-//    children until the group's creation events are drained), so a kernel never follows a
+//    already written (a parent whose new group appeared after the poll is encoded without
+//    children until the group's creation events are polled), so a kernel never follows a
 //    group into garbage while construction is inserting.
 //  * BRICK BUFFER: `slot_count` slots of one stored brick each, ALWAYS as uint16 samples
 //    (device_brick_bytes() = geometry().brick_samples() * 2; uint8 trees are widened on upload),
@@ -31,18 +34,19 @@
 // brick but are not resident (the "chain"), orders the set COARSE FIRST (higher level first,
 // then by id) — except that when the set exceeds the slots that can be filled (free or
 // evictable), the requested nodes are kept and only the coarsest ancestors that still fit (so a
-// ray front larger than the buffer always progresses) — and uploads as many as the budget allows (time, measured around the blocking
-// writes, and an optional brick count). A free slot is used first; else the least recently used
-// slot (oldest slot_used stamp, coarse levels evicted last at equal stamps) whose stamp is older
-// than `protect_frame` — bricks the in-flight frame sampled are never evicted, and a brick
-// uploaded in this call is never evicted by the same call. Evicting clears the node's in_buffer
-// bit (its entry is rewritten). Resident bricks whose bytes changed (kUpdated of a node that
-// still owns a brick) stay resident showing their previous bytes and are re-uploaded FIRST
-// within the budget (no flicker: nothing else changes); a node that lost its brick frees its slot.
+// ray front larger than the buffer always progresses) — and uploads as many as the budget allows
+// (time, measured around the blocking writes, and an optional brick count). A free slot is used
+// first; else the least recently used slot (oldest slot_used stamp, coarse levels evicted last at
+// equal stamps) whose stamp is older than `protect_frame` — bricks the in-flight frame sampled are
+// never evicted, and a brick uploaded in this call is never evicted by the same call. Evicting
+// clears the node's in_buffer bit (its entry is rewritten). Resident bricks whose bytes changed
+// (kUpdated of a node that still owns a brick) stay resident showing their previous bytes and are
+// re-uploaded FIRST within the budget (no flicker: nothing else changes); a node that lost its
+// brick frees its slot.
 //
 // Thread safety: NOT thread-safe. One render thread owns a DeviceOctree (and the device queue it
 // enqueues on). The octree may be inserting concurrently on other threads: Sync and Upload read
-// it only through its thread-safe GetNode / ReadBrick / DrainChanges.
+// it only through its thread-safe GetNode / ReadBrick and this mirror's change subscription.
 #ifndef OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
 #define OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
 
@@ -74,6 +78,9 @@ struct DeviceOctreeOptions {
   uint64_t max_allocation_bytes = 0;
   // Capacity of the request list (ids per frame beyond it are dropped; the next frame asks again).
   uint32_t request_capacity = 65536;
+  // How many change-log events the mirror may fall behind between two Syncs before the log drops
+  // them and the next Sync walks the whole tree again instead (ChangeLog, "Bound"). Must be > 0.
+  size_t change_backlog = octree::kDefaultChangeBacklog;
 };
 inline constexpr uint32_t kMinBrickSlots = 8;
 
@@ -98,6 +105,7 @@ struct SyncStats {
   uint64_t changes = 0;          // Change-log events applied.
   uint64_t entries_written = 0;  // Node entries written to the device.
   uint64_t stale_bricks = 0;     // Resident bricks now waiting for a re-upload.
+  bool resynchronised = false;   // The mirror had fallen behind the log: it was rebuilt by a walk.
 };
 
 class DeviceOctree {
@@ -111,7 +119,8 @@ class DeviceOctree {
   DeviceOctree(const DeviceOctree&) = delete;
   DeviceOctree& operator=(const DeviceOctree&) = delete;
 
-  // Applies the octree's pending changes to the node buffer (see the file comment).
+  // Applies the octree's changes since the last Sync to the node buffer, or re-walks the tree
+  // when the mirror fell too far behind (see the file comment).
   Status Sync(SyncStats* stats = nullptr);
 
   // A new frame stamp (1, 2, ...; never 0) and an empty request list.

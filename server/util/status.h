@@ -23,6 +23,7 @@ enum class StatusCode {
   kResourceExhausted,  // A limit (memory budget, size cap) would be exceeded.
   kCancelled,          // The operation was stopped on request.
   kInternal,           // A bug: an invariant of ours does not hold.
+  kUnavailable,        // Held by another process (a locked cache directory); may work later.
 };
 
 std::string_view StatusCodeName(StatusCode code);
@@ -58,6 +59,7 @@ Status OutOfRangeError(std::string message);
 Status ResourceExhaustedError(std::string message);
 Status CancelledError(std::string message);
 Status InternalError(std::string message);
+Status UnavailableError(std::string message);
 
 // Returns from the enclosing function when `expr` (a Status) is not OK.
 #define OCTO_RETURN_IF_ERROR(expr)               \

@@ -13,6 +13,13 @@ uint64_t VolumeInfo::VoxelBytes() const {
       .value_or(UINT64_MAX);
 }
 
+Status CheckChannelCount(int64_t channels) {
+  if (channels >= 1 && channels <= kMaxChannels) return Status::Ok();
+  if (channels < 1) return CorruptError(std::to_string(channels) + " channels");
+  return ResourceExhaustedError(std::to_string(channels) + " channels, more than the " +
+                                std::to_string(kMaxChannels) + " Octoscope supports");
+}
+
 Status VolumeInfo::Validate() const {
   for (int a = 0; a < 3; ++a) {
     if (size[a] < 1)
@@ -23,6 +30,7 @@ Status VolumeInfo::Validate() const {
     }
   }
   if (channels.empty()) return CorruptError("no channels");
+  OCTO_RETURN_IF_ERROR(CheckChannelCount(static_cast<int64_t>(channels.size())));
   if (series_count < 1 || series < 0 || series >= series_count) {
     return OutOfRangeError("series " + std::to_string(series) + " of " +
                            std::to_string(series_count));

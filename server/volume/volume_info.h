@@ -1,9 +1,9 @@
 // VolumeInfo: what a volume source knows about its scan before any voxel is read — extent,
 // channels, sample type, physical spacing, and which series/time point of the file it shows.
 //
-// Invariants (checked by Validate()): every size >= 1; channels non-empty; spacing, where known,
-// finite and > 0; 0 <= series < series_count; 0 <= time < time_points; 0 <= level < level_count;
-// display windows, where given, finite.
+// Invariants (checked by Validate()): every size >= 1; 1 <= channels <= kMaxChannels; spacing,
+// where known, finite and > 0; 0 <= series < series_count; 0 <= time < time_points;
+// 0 <= level < level_count; display windows, where given, finite.
 //
 // Thread safety: a plain value type.
 #ifndef OCTOSCOPE_VOLUME_VOLUME_INFO_H_
@@ -19,6 +19,15 @@
 #include "volume/data_type.h"
 
 namespace octoscope::volume {
+
+// The most channels a volume may have: the octree tracks which channels of a leaf are complete in
+// a 64-bit mask and stores up to 64 channels per brick (octree::kMaxChannels), and the renderer
+// activates at most 64. Readers refuse files declaring more before sizing anything by the count.
+inline constexpr int kMaxChannels = 64;
+
+// OK for 1..kMaxChannels; otherwise ResourceExhausted "<n> channels, more than the 64 Octoscope
+// supports" (readers add the file and where the count comes from).
+Status CheckChannelCount(int64_t channels);
 
 // An sRGB display colour with alpha, 8 bits each.
 struct Rgba {
@@ -55,6 +64,10 @@ struct VolumeInfo {
   int time = 0;
   int level_count = 1;  // Resolution levels the file stores (multiscale formats); 0 = finest.
   int level = 0;
+  // What the reader had to guess or ignore, one sentence each naming the file (e.g. malformed
+  // OME-XML read as a plain TIFF). Empty when the file was read as it describes itself. Shown to
+  // the user (stderr, `info --json` "warnings") and kept for a server to show later.
+  std::vector<std::string> warnings;
 
   int channel_count() const { return static_cast<int>(channels.size()); }
   // Voxels in one xy plane of one channel.

@@ -24,6 +24,12 @@ TEST(FlagsTest, ParsesSwitchesValuesAndPositionals) {
   EXPECT_EQ(flags.positionals(), std::vector<std::string>{"in.tif"});
 }
 
+TEST(FlagsTest, CommandIsTheUsageLinesFirstTwoWords) {
+  EXPECT_EQ(Flags("octoscope info INPUT [--json]", "").command(), "octoscope info");
+  EXPECT_EQ(Flags("octoscope build", "").command(), "octoscope build");
+  EXPECT_EQ(Flags("tool", "").command(), "tool");
+}
+
 TEST(FlagsTest, DefaultsWhenAbsent) {
   Flags flags = MakeFlags();
   std::vector<std::string> args = {"in.tif"};

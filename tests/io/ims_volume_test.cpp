@@ -214,6 +214,32 @@ TEST_F(BadImaris, WrongRankAndLyingImageSize) {
                 "does not fit the data array");
 }
 
+TEST_F(BadImaris, MoreThan64ChannelsAreRefused) {
+  // `channels` groups "Channel C", each with a 1x2x2 u8 Data array.
+  auto write = [&](const std::string& name, int channels) {
+    const fs::path path = dir_ / name;
+    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    hid_t lcpl = H5Pcreate(H5P_LINK_CREATE);
+    H5Pset_create_intermediate_group(lcpl, 1);
+    const hsize_t dims[3] = {1, 2, 2};
+    hid_t space = H5Screate_simple(3, dims, nullptr);
+    for (int c = 0; c < channels; ++c) {
+      const std::string data =
+          "DataSet/ResolutionLevel 0/TimePoint 0/Channel " + std::to_string(c) + "/Data";
+      H5Dclose(
+          H5Dcreate2(f, data.c_str(), H5T_NATIVE_UINT8, space, lcpl, H5P_DEFAULT, H5P_DEFAULT));
+    }
+    H5Sclose(space);
+    H5Pclose(lcpl);
+    H5Fclose(f);
+    return path;
+  };
+  auto source = OpenVolume(write("64.ims", 64), {});
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ((*source)->info().channel_count(), 64);
+  ExpectRefused(write("65.ims", 65), StatusCode::kResourceExhausted, "more than 64 channels");
+}
+
 TEST(Hdf5Signature, FoundAtZeroOrAfterAUserBlock) {
   const fs::path dir = testing::MakeTempDir("hdf5-signature");
   std::string sig = "\x89HDF\r\n\x1a\n";

@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "io/open_volume.h"
 #include "io/tiff_file.h"
 #include "io/tiff_fixture.h"
 
@@ -26,6 +27,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using testing::MakeTempDir;
+using testing::ReadStoredPlane;
 using testing::TiffFixtureSpec;
 using testing::WriteTiffFixture;
 using volume::DataType;
@@ -500,12 +502,11 @@ void CheckPattern(const fs::path& path, int size_z, int size_c, int size_t_) {
                 << path << " z " << z << " c " << c << " t " << t << " x " << x << " y " << y;
           }
         }
-        // A zero-copy view, when offered, holds the same plane.
-        if (std::optional<std::span<const std::byte>> view = source.MappedPlane(c, z)) {
+        // A stored plane, when located, holds the same plane.
+        if (std::optional<std::vector<std::byte>> view = ReadStoredPlane(source, c, z)) {
           const size_t plane = static_cast<size_t>(kW) * kH * 2;
-          EXPECT_EQ(
-              std::vector<std::byte>(view->begin(), view->end()),
-              std::vector<std::byte>(slab.begin() + z * plane, slab.begin() + (z + 1) * plane))
+          EXPECT_EQ(*view, std::vector<std::byte>(slab.begin() + z * plane,
+                                                  slab.begin() + (z + 1) * plane))
               << path << " z " << z << " c " << c << " t " << t;
         }
       }
@@ -676,7 +677,7 @@ TEST(OmeTiffVolumeTest, MultiFileWithCompanion) {
   fs::remove_all(dir);
 }
 
-TEST(OmeTiffVolumeTest, MappedPlaneOfferedForUncompressedPagesOnly) {
+TEST(OmeTiffVolumeTest, StoredPlaneLocatedForUncompressedPagesOnly) {
   const fs::path dir = MakeTempDir("ome-mapped");
   for (uint16_t compression : {uint16_t{COMPRESSION_NONE}, uint16_t{COMPRESSION_ADOBE_DEFLATE}}) {
     const fs::path path = dir / ("c" + std::to_string(compression) + ".ome.tif");
@@ -688,7 +689,7 @@ TEST(OmeTiffVolumeTest, MappedPlaneOfferedForUncompressedPagesOnly) {
       ASSERT_TRUE(source.ok()) << source.status().ToString();
       for (int c = 0; c < kC; ++c) {
         for (int z = 0; z < kZ; ++z) {
-          std::optional<std::span<const std::byte>> view = (*source)->MappedPlane(c, z);
+          std::optional<std::vector<std::byte>> view = ReadStoredPlane(**source, c, z);
           ASSERT_EQ(view.has_value(),
                     compression == COMPRESSION_NONE && std::endian::native == std::endian::little);
           if (!view) continue;
@@ -703,18 +704,18 @@ TEST(OmeTiffVolumeTest, MappedPlaneOfferedForUncompressedPagesOnly) {
           EXPECT_EQ(wrong, 0) << "z " << z << " c " << c << " t " << t;
         }
       }
-      EXPECT_FALSE((*source)->MappedPlane(kC, 0).has_value());
-      EXPECT_FALSE((*source)->MappedPlane(0, kZ).has_value());
-      EXPECT_FALSE((*source)->MappedPlane(-1, 0).has_value());
+      EXPECT_FALSE((*source)->FindStoredPlane(kC, 0).has_value());
+      EXPECT_FALSE((*source)->FindStoredPlane(0, kZ).has_value());
+      EXPECT_FALSE((*source)->FindStoredPlane(-1, 0).has_value());
     }
   }
   fs::remove_all(dir);
 }
 
-TEST(OmeTiffVolumeTest, MappedPlanesOutliveCacheEvictionAcrossManyFiles) {
+TEST(OmeTiffVolumeTest, StoredPlanesOutliveCacheEvictionAcrossManyFiles) {
   if (std::endian::native != std::endian::little) GTEST_SKIP() << "fixtures are little-endian";
-  // One plane per file, more files than the source keeps open in its cache: the views handed out
-  // must stay valid while reads evict and reopen the files.
+  // One plane per file, more files than the source keeps open in its cache: a StoredPlane handed
+  // out keeps its file open while reads evict and reopen the cache's files.
   const fs::path dir = MakeTempDir("ome-many");
   constexpr int kFiles = 3 * static_cast<int>(kMaxOpenOmeTiffFiles);
   std::string children;
@@ -731,13 +732,9 @@ TEST(OmeTiffVolumeTest, MappedPlanesOutliveCacheEvictionAcrossManyFiles) {
   }
   auto source = Open(dir / "f0.ome.tif");
   ASSERT_TRUE(source.ok()) << source.status().ToString();
-  std::vector<std::optional<std::span<const std::byte>>> views;
-  for (int z = 0; z < kFiles; ++z) views.push_back((*source)->MappedPlane(0, z));
-  // More views than the cache holds files (planes past the source's pinning limit may fall back).
-  const auto offered =
-      std::count_if(views.begin(), views.end(), [](auto& v) { return v.has_value(); });
-  EXPECT_GT(offered, static_cast<long>(kMaxOpenOmeTiffFiles));
-  // Read every plane twice (evicting and reopening files), then check every view.
+  std::vector<std::optional<StoredPlane>> stored;
+  for (int z = 0; z < kFiles; ++z) stored.push_back((*source)->FindStoredPlane(0, z));
+  // Read every plane twice (evicting and reopening files), then read every stored plane.
   for (int round = 0; round < 2; ++round) {
     for (int z = 0; z < kFiles; ++z) {
       std::vector<std::byte> plane = ReadSlab(**source, 0, z, 1);
@@ -745,19 +742,17 @@ TEST(OmeTiffVolumeTest, MappedPlanesOutliveCacheEvictionAcrossManyFiles) {
     }
   }
   int wrong = 0;
+  std::vector<std::byte> plane((*source)->SlabBytes(1));
   for (int z = 0; z < kFiles; ++z) {
-    if (!views[z]) continue;
+    ASSERT_TRUE(stored[z].has_value()) << "z " << z;
+    ASSERT_TRUE(stored[z]->file->ReadBytes(stored[z]->offset, plane).ok());
     for (uint32_t y = 0; y < kH; ++y) {
       for (uint32_t x = 0; x < kW; ++x) {
         uint16_t got;
-        std::memcpy(&got, views[z]->data() + (y * kW + x) * 2, 2);
+        std::memcpy(&got, plane.data() + (y * kW + x) * 2, 2);
         if (got != Pattern(z, 0, 0, x, y)) ++wrong;
       }
     }
-    // Asking again gives the same view (the pinned file's mapping).
-    std::optional<std::span<const std::byte>> again = (*source)->MappedPlane(0, z);
-    ASSERT_TRUE(again.has_value());
-    EXPECT_EQ(again->data(), views[z]->data());
   }
   EXPECT_EQ(wrong, 0);
   fs::remove_all(dir);
@@ -956,34 +951,123 @@ TEST_F(OmeTiffErrorTest, ReferencedFileMissing) {
               {(dir_ / "absent.ome.tif").string()});
 }
 
-TEST_F(OmeTiffErrorTest, MalformedXml) {
-  fs::path path = Write("bad.ome.tif", "<?xml version=\"1.0\"?><OME><Image ID=\"i\"><Pixels");
-  ExpectError(Open(path).status(), StatusCode::kCorrupt, {path.string(), "malformed"});
+// Issue 8: malformed OME-XML is never silently reinterpreted. A TIFF whose own OME-XML does not
+// parse is read as the plain TIFF stack it also is (as tifffile does), with a warning naming the
+// file and the XML's problem; a malformed document the opened file only refers to (a BinaryOnly
+// master, a companion) is an error naming that document.
+TEST_F(OmeTiffErrorTest, MalformedXmlOfTheFileItselfReadsAsPlainTiffWithAWarning) {
+  struct Case {
+    const char* name;
+    std::string xml;
+    const char* problem;  // What the warning must say about the XML.
+  };
+  const Case cases[] = {
+      {"truncated.ome.tif", "<?xml version=\"1.0\"?><OME><Image ID=\"i\"><Pixels", "malformed"},
+      {"sizex.ome.tif",
+       OmeDoc("DimensionOrder=\"XYZCT\" Type=\"uint16\" SizeX=\"99999999999\" SizeY=\"4\" "
+              "SizeZ=\"3\" SizeC=\"1\" SizeT=\"1\"",
+              "<TiffData/>"),
+       "SizeX"},
+      {"prolog.ome.tif", "<?xml version=\"1.0\" <OME><Image/></OME>", "malformed"},
+      // A member of a multi-file set whose own (BinaryOnly) XML is broken.
+      {"member.ome.tif", "<OME><BinaryOnly MetadataFile=\"m.ome.tif\"></OME>", "malformed"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path path = Write(c.name, c.xml);
+    for (bool through_open_volume : {false, true}) {
+      auto source = through_open_volume ? OpenVolume(path, OpenOptions{}) : Open(path);
+      ASSERT_TRUE(source.ok()) << source.status().ToString();
+      const volume::VolumeInfo& info = (*source)->info();
+      EXPECT_EQ(info.format, "tiff");
+      EXPECT_EQ(info.size, (std::array<int64_t, 3>{kW, kH, 3}));
+      EXPECT_EQ(info.channel_count(), 1);
+      ASSERT_EQ(info.warnings.size(), 1u);
+      const std::string& warning = info.warnings[0];
+      for (const std::string& needle : {path.string(), std::string("OME-XML"),
+                                        std::string(c.problem), std::string("plain TIFF")}) {
+        EXPECT_NE(warning.find(needle), std::string::npos)
+            << "'" << needle << "' not in: " << warning;
+      }
+      // The pages read as they are: page k is z plane k.
+      for (int z = 0; z < 3; ++z) {
+        std::vector<std::byte> plane = ReadSlab(**source, 0, z, 1);
+        EXPECT_EQ(SampleAt(plane, DataType::kUint16, 5), Pattern(z, 0, 0, 5 % kW, 5 / kW));
+      }
+    }
+  }
+}
+
+TEST_F(OmeTiffErrorTest, MalformedXmlThatCannotBeReadAsPlainTiffIsAnError) {
+  // Pages of two sizes: no plain stack either. The error says both.
+  const fs::path path = dir_ / "mixed.ome.tif";
+  {
+    TiffFixtureSpec spec;
+    spec.width = kW;
+    spec.height = kH;
+    spec.descriptions = {"<OME><Image"};
+    ASSERT_TRUE(WriteTiffFixture(path, spec));
+    TIFF* tif = TIFFOpen(path.c_str(), "a");
+    ASSERT_NE(tif, nullptr);
+    const uint16_t pixels[4] = {1, 2, 3, 4};
+    TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, 2);
+    TIFFSetField(tif, TIFFTAG_IMAGELENGTH, 2);
+    TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 16);
+    TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
+    TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+    TIFFSetField(tif, TIFFTAG_ROWSPERSTRIP, 2);
+    ASSERT_EQ(TIFFWriteEncodedStrip(tif, 0, const_cast<uint16_t*>(pixels), sizeof pixels),
+              static_cast<tmsize_t>(sizeof pixels));
+    TIFFClose(tif);
+  }
+  ExpectError(Open(path).status(), StatusCode::kCorrupt,
+              {path.string(), "malformed", "nor can the file be read as a plain TIFF stack",
+               "pages differ"});
+}
+
+TEST_F(OmeTiffErrorTest, MalformedXmlElsewhereIsAnErrorNamingIt) {
+  // The master a member's BinaryOnly names.
+  const fs::path master = Write("master.ome.tif", "<OME><Image ID=\"i\"><Pixels");
+  const fs::path member = Write(
+      "member.ome.tif", "<OME><BinaryOnly MetadataFile=\"master.ome.tif\" UUID=\"u\"/></OME>");
+  ExpectError(Open(member).status(), StatusCode::kCorrupt,
+              {member.string(), master.string(), "BinaryOnly", "malformed"});
+  // The master itself reads as a plain TIFF, with the warning.
+  auto opened = Open(master);
+  ASSERT_TRUE(opened.ok()) << opened.status().ToString();
+  EXPECT_EQ((*opened)->info().warnings.size(), 1u);
+  // A companion file: XML only, nothing else to read it as.
   fs::path companion = dir_ / "bad.companion.ome";
   std::ofstream(companion) << "<OME><Image></OME>";
-  ExpectError(Open(companion).status(), StatusCode::kCorrupt, {companion.string()});
+  ExpectError(Open(companion).status(), StatusCode::kCorrupt, {companion.string(), "malformed"});
+  ExpectError(OpenVolume(companion, OpenOptions{}).status(), StatusCode::kCorrupt,
+              {companion.string(), "malformed"});
+  // Well-formed OME-XML that contradicts the file stays an error (TiffData beyond the pages).
+  const fs::path contradicts =
+      Write("contradicts.ome.tif", OmeDoc(PixelsAttrs("XYZCT", kW, kH, 5, 1, 1), "<TiffData/>"));
+  ExpectError(Open(contradicts).status(), StatusCode::kCorrupt, {contradicts.string(), "3 IFDs"});
 }
 
 TEST_F(OmeTiffErrorTest, AbsurdSizes) {
-  // SizeX over 2^31.
-  fs::path path =
-      Write("huge.ome.tif", OmeDoc("DimensionOrder=\"XYZCT\" Type=\"uint16\" "
-                                   "SizeX=\"99999999999\" SizeY=\"4\" SizeZ=\"3\" SizeC=\"1\" "
-                                   "SizeT=\"1\"",
-                                   "<TiffData/>"));
-  ExpectError(Open(path).status(), StatusCode::kCorrupt, {path.string(), "SizeX"});
+  // (SizeX over 2^31 is invalid OME-XML: see MalformedXmlOfTheFileItselfReadsAsPlainTiff...)
   // Each size allowed, but one plane beyond the plane limit.
-  path = Write("wide.ome.tif", OmeDoc("DimensionOrder=\"XYZCT\" Type=\"uint16\" "
-                                      "SizeX=\"2147483648\" SizeY=\"2147483648\" SizeZ=\"1\" "
-                                      "SizeC=\"1\" SizeT=\"1\"",
-                                      "<TiffData/>"));
+  fs::path path =
+      Write("wide.ome.tif", OmeDoc("DimensionOrder=\"XYZCT\" Type=\"uint16\" "
+                                   "SizeX=\"2147483648\" SizeY=\"2147483648\" SizeZ=\"1\" "
+                                   "SizeC=\"1\" SizeT=\"1\"",
+                                   "<TiffData/>"));
   ExpectError(Open(path).status(), StatusCode::kResourceExhausted, {path.string()});
   // Billions of planes of one voxel.
   path = Write("planes.ome.tif", OmeDoc("DimensionOrder=\"XYZCT\" Type=\"uint16\" SizeX=\"5\" "
-                                        "SizeY=\"4\" SizeZ=\"2147483648\" SizeC=\"1000\" "
+                                        "SizeY=\"4\" SizeZ=\"2147483648\" SizeC=\"64\" "
                                         "SizeT=\"1000\"",
                                         "<TiffData/>"));
-  ExpectError(Open(path).status(), StatusCode::kResourceExhausted, {path.string()});
+  ExpectError(Open(path).status(), StatusCode::kResourceExhausted,
+              {path.string(), "planes per time point"});
+  // More channels than a volume may have (volume::kMaxChannels), refused with the limit stated.
+  path = Write("channels.ome.tif", OmeDoc(PixelsAttrs("XYZCT", kW, kH, 1, 65, 1), "<TiffData/>"));
+  ExpectError(Open(path).status(), StatusCode::kResourceExhausted,
+              {path.string(), "SizeC=65", "65 channels, more than the 64 Octoscope supports"});
 }
 
 TEST_F(OmeTiffErrorTest, PixelsDisagreeWithPages) {

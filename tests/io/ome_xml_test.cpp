@@ -210,6 +210,13 @@ TEST(OmeXmlTest, SniffsOmeXml) {
   EXPECT_FALSE(LooksLikeOmeXml("<?xml version=\"1.0\"?><VolumeFile/>"));
   EXPECT_FALSE(LooksLikeOmeXml("<OMEX/>"));
   EXPECT_FALSE(LooksLikeOmeXml(""));
+  EXPECT_FALSE(LooksLikeOmeXml("Stage:OMEGA-3 position 12"));
+  // A damaged start (an unterminated prolog) still claims OME by its end or its namespace, so
+  // that the document is parsed and its problem reported rather than silently ignored.
+  EXPECT_TRUE(LooksLikeOmeXml("<?xml version=\"1.0\" <OME><Image/></OME>\n"));
+  EXPECT_TRUE(
+      LooksLikeOmeXml("<!-- unterminated <OME xmlns=\"http://www.openmicroscopy.org/"
+                      "Schemas/OME/2016-06\">"));
 }
 
 // Each invalid document must be rejected with a message naming the file and the problem.

@@ -256,6 +256,58 @@ TEST_F(BadZarr, AbsurdDimensionsAreRefusedBeforeAllocating) {
   EXPECT_EQ(s.code(), StatusCode::kResourceExhausted) << s.ToString();
 }
 
+TEST_F(BadZarr, MoreThan64ChannelsAreRefusedBeforeSizingAnything) {
+  auto write = [&](int64_t channels) {
+    Write("c.zarr/.zgroup", R"({"zarr_format": 2})");
+    Write("c.zarr/.zattrs", R"({"multiscales": [{"version": "0.4", "axes": [
+        {"name": "c", "type": "channel"}, {"name": "y", "type": "space"}, {"name": "x", "type":
+        "space"}], "datasets": [{"path": "0"}]}]})");
+    Write("c.zarr/0/.zarray", R"({"zarr_format": 2, "shape": [)" + std::to_string(channels) +
+                                  R"(, 2, 2], "chunks": [1, 2, 2], "dtype": "<u2",
+        "compressor": null, "fill_value": 0, "order": "C", "filters": null})");
+  };
+  write(64);
+  auto source = OpenVolume(dir_ / "c.zarr", ZarrOptions());
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ((*source)->info().channel_count(), 64);
+  for (int64_t channels : {int64_t{65}, int64_t{1} << 40}) {
+    write(channels);
+    Status s = Read("c.zarr");
+    EXPECT_EQ(s.code(), StatusCode::kResourceExhausted) << s.ToString();
+    EXPECT_NE(s.message().find("more than the 64"), std::string::npos) << s.message();
+    EXPECT_NE(s.message().find("c.zarr"), std::string::npos) << s.message();
+  }
+}
+
+TEST_F(BadZarr, OmeroForAnotherChannelCountIsIgnoredWithAWarning) {
+  Write("c.zarr/.zgroup", R"({"zarr_format": 2})");
+  Write("c.zarr/0/.zarray", R"({"zarr_format": 2, "shape": [2, 2, 2], "chunks": [1, 2, 2],
+      "dtype": "<u2", "compressor": null, "fill_value": 0, "order": "C", "filters": null})");
+  const std::string multiscales = R"("multiscales": [{"version": "0.4", "axes": [
+      {"name": "c", "type": "channel"}, {"name": "y", "type": "space"}, {"name": "x", "type":
+      "space"}], "datasets": [{"path": "0"}]}])";
+  Write("c.zarr/.zattrs",
+        "{" + multiscales + R"(, "omero": {"channels": [{"label": "a"}, {"label": "b"}]}})");
+  OpenOptions options = ZarrOptions();
+  std::vector<std::string> reported;
+  options.on_warning = [&](const std::string& w) { reported.push_back(w); };
+  auto source = OpenVolume(dir_ / "c.zarr", options);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ((*source)->info().channels[1].name, "b");
+  EXPECT_TRUE((*source)->info().warnings.empty());
+  EXPECT_TRUE(reported.empty());
+
+  Write("c.zarr/.zattrs", "{" + multiscales + R"(, "omero": {"channels": [{"label": "a"}]}})");
+  source = OpenVolume(dir_ / "c.zarr", options);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ((*source)->info().channels[0].name, "");
+  ASSERT_EQ((*source)->info().warnings.size(), 1u);
+  const std::string& w = (*source)->info().warnings[0];
+  EXPECT_NE(w.find("c.zarr"), std::string::npos) << w;
+  EXPECT_NE(w.find("lists 1 channels, the image has 2"), std::string::npos) << w;
+  EXPECT_EQ(reported, (*source)->info().warnings);
+}
+
 TEST_F(BadZarr, ShapeLargerThanTheChunksHoldReadsFillWhereChunksAreMissing) {
   // A shape that claims more than the chunk files hold is not an error in Zarr: missing chunks
   // are the fill value. A shape smaller than the chunks is cropped.

@@ -58,6 +58,29 @@ TEST_F(TiffFileCacheTest, EvictsLeastRecentlyUsedAndKeepsBorrowedHandlesAlive) {
   EXPECT_TRUE((*f1)->ReadPlane(0, 0, plane).ok());
 }
 
+// The files of a cache share one budget for kept decoded pages: with room for a page per file
+// the samples of a chunky page are decoded once, with less each is decoded on its own.
+TEST_F(TiffFileCacheTest, FilesShareTheBudgetForKeptPages) {
+  testing::TiffFixtureSpec spec;  // 16 x 8 RGB uint16, deflate, in 3 strips: 768 bytes a page.
+  spec.samples_per_pixel = 3;
+  spec.compression = 8;
+  ASSERT_TRUE(testing::WriteTiffFixture(dir_ / "rgb.tif", spec));
+  const uint64_t page_bytes = 16 * 8 * 3 * 2;
+  for (uint64_t budget : {4 * page_bytes, 4 * page_bytes - 1}) {
+    TiffFile::Limits limits;
+    limits.max_cached_bytes = budget;
+    EXPECT_EQ(TiffFileCache::PerFileLimits(limits, 4).max_cached_bytes, budget / 4);
+    TiffFileCache cache(limits, 4);
+    auto file = cache.Get(dir_ / "rgb.tif");
+    ASSERT_TRUE(file.ok()) << file.status().ToString();
+    std::vector<std::byte> plane(16 * 8 * 2);
+    for (int sample = 0; sample < 3; ++sample) {
+      ASSERT_TRUE((*file)->ReadPlane(0, sample, plane).ok());
+    }
+    EXPECT_EQ((*file)->blocks_decoded(), budget / 4 >= page_bytes ? 3u : 9u) << budget;
+  }
+}
+
 TEST_F(TiffFileCacheTest, ErrorsAreNotCached) {
   TiffFileCache cache(TiffFile::Limits{}, 2);
   EXPECT_FALSE(cache.Get(dir_ / "missing.tif").ok());

@@ -345,6 +345,16 @@ std::filesystem::path Regression(const std::string& name) {
   return std::filesystem::path(OCTOSCOPE_SOURCE_DIR) / "fuzz" / "regressions" / name;
 }
 
+std::optional<std::vector<std::byte>> ReadStoredPlane(const io::VolumeSource& source, int channel,
+                                                      int64_t z) {
+  std::optional<io::StoredPlane> stored = source.FindStoredPlane(channel, z);
+  if (!stored) return std::nullopt;
+  std::vector<std::byte> plane(source.SlabBytes(1));
+  Status read = stored->file->ReadBytes(stored->offset, plane);
+  if (!read.ok()) ADD_FAILURE() << "reading a stored plane: " << read.ToString();
+  return plane;
+}
+
 void ExpectErrorNaming(const Status& status, const std::filesystem::path& path) {
   EXPECT_FALSE(status.ok());
   EXPECT_NE(status.message().find(path.string()), std::string::npos) << status.ToString();

@@ -13,12 +13,14 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <ostream>
 #include <span>
 #include <string>
 #include <utility>
 #include <vector>
 
+#include "io/volume_source.h"
 #include "util/status.h"
 #include "volume/data_type.h"
 
@@ -140,6 +142,11 @@ std::filesystem::path Regression(const std::string& name);
 
 // Expects `status` to be an error whose message names `path`.
 void ExpectErrorNaming(const Status& status, const std::filesystem::path& path);
+
+// The plane `source.FindStoredPlane(channel, z)` locates, read with its file's ReadBytes; nullopt
+// when the source does not locate it (a failed read is recorded with ADD_FAILURE).
+std::optional<std::vector<std::byte>> ReadStoredPlane(const io::VolumeSource& source, int channel,
+                                                      int64_t z);
 
 // ---------------------------------------------------------------------------------------------
 // GoogleTest bases.

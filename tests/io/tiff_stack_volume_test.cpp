@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "io/open_volume.h"
 #include "io/tiff_fixture.h"
 
 namespace octoscope::io {
@@ -36,6 +37,7 @@ using octoscope::testing::MakeTempDir;
 using octoscope::testing::PatternFor;
 using octoscope::testing::PatternOf;
 using octoscope::testing::ReadAll;
+using octoscope::testing::ReadStoredPlane;
 using octoscope::testing::Regression;
 using octoscope::testing::SampleBytes;
 using octoscope::testing::TiffFixtureSpec;
@@ -100,28 +102,23 @@ TEST_P(TiffStackRoundTrip, ReadsEveryVoxel) {
           << c.name << " channel " << ch << " z " << z;
     }
   }
-  // Zero-copy views: offered exactly for uncompressed strips of single samples (or planar
-  // samples) in native byte order, and then equal to what ReadSlab decodes.
-  const bool mappable = std::endian::native == std::endian::little && spec.compression == 1 &&
-                        spec.tile_width == 0 && (!spec.big_endian || spec.bits_per_sample == 8) &&
-                        (spec.samples_per_pixel == 1 || spec.planar_config == 2);
+  // Stored planes: located exactly for uncompressed strips of single samples (or planar samples)
+  // in native byte order, and then equal to what ReadSlab decodes.
+  const bool stored = std::endian::native == std::endian::little && spec.compression == 1 &&
+                      spec.tile_width == 0 && (!spec.big_endian || spec.bits_per_sample == 8) &&
+                      (spec.samples_per_pixel == 1 || spec.planar_config == 2);
   for (int ch = 0; ch < info.channel_count(); ++ch) {
     for (int z : {0, spec.pages - 1}) {
-      std::optional<std::span<const std::byte>> view = v.MappedPlane(ch, z);
-      // libtiff keeps data 2-byte aligned only: wider samples are offered when they happen to be
-      // aligned (TiffFile's own tests pin that rule down).
-      if (!mappable || spec.bits_per_sample <= 16) {
-        ASSERT_EQ(view.has_value(), mappable) << c.name << " channel " << ch << " z " << z;
-      }
-      if (!view) continue;
-      std::vector<std::byte> plane(v.SlabBytes(1));
-      ASSERT_TRUE(v.ReadSlab(ch, z, 1, plane).ok());
-      EXPECT_EQ(std::vector<std::byte>(view->begin(), view->end()), plane)
-          << c.name << " channel " << ch << " z " << z;
+      std::optional<std::vector<std::byte>> plane = ReadStoredPlane(v, ch, z);
+      ASSERT_EQ(plane.has_value(), stored) << c.name << " channel " << ch << " z " << z;
+      if (!plane) continue;
+      std::vector<std::byte> read(v.SlabBytes(1));
+      ASSERT_TRUE(v.ReadSlab(ch, z, 1, read).ok());
+      EXPECT_EQ(*plane, read) << c.name << " channel " << ch << " z " << z;
     }
   }
-  EXPECT_FALSE(v.MappedPlane(info.channel_count(), 0).has_value());
-  EXPECT_FALSE(v.MappedPlane(0, spec.pages).has_value());
+  EXPECT_FALSE(v.FindStoredPlane(info.channel_count(), 0).has_value());
+  EXPECT_FALSE(v.FindStoredPlane(0, spec.pages).has_value());
 
   std::vector<std::byte> slab(v.SlabBytes(2));
   ASSERT_TRUE(v.ReadSlab(info.channel_count() - 1, 2, 2, slab).ok());
@@ -443,10 +440,11 @@ TEST_F(TiffStackTest, ImageJInconsistentCountsAreErrors) {
 // plane table of 8 TB (bad_alloc), channels=2*10^8 a channel list of 9 GB. Claims are now checked
 // against what the file can hold, and channels capped, before anything is allocated.
 TEST_F(TiffStackTest, ImageJCountsBeyondTheFileAreRefusedBeforeAllocating) {
-  for (const char* name : {"imagej-images-bad-alloc.tif", "imagej-channels-9gb-table.tif"}) {
+  for (auto [name, code] : {std::pair{"imagej-images-bad-alloc.tif", StatusCode::kCorrupt},
+                            {"imagej-channels-9gb-table.tif", StatusCode::kResourceExhausted}}) {
     const fs::path path = Regression(name);
     Status st = OpenTiffStack(path, OpenOptions{}).status();
-    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+    EXPECT_EQ(st.code(), code) << st.ToString();
     ExpectErrorNaming(st, path);
   }
   TiffFixtureSpec spec;
@@ -454,12 +452,15 @@ TEST_F(TiffStackTest, ImageJCountsBeyondTheFileAreRefusedBeforeAllocating) {
   struct Case {
     const char* description;
     const char* needle;
+    StatusCode code = StatusCode::kCorrupt;
   };
   const Case cases[] = {
       {"ImageJ=1.54f\nimages=1000000000000\n", "can hold at most"},
       {"ImageJ=1.54f\nimages=9223372036854775807\n", "can hold at most"},
-      {"ImageJ=1.54f\nchannels=200000000\nimages=200000000\n", "channels=200000000"},
-      {"ImageJ=1.54f\nchannels=65537\n", "channels=65537"},
+      {"ImageJ=1.54f\nchannels=200000000\nimages=200000000\n",
+       "channels=200000000: 200000000 channels, more than the 64", StatusCode::kResourceExhausted},
+      {"ImageJ=1.54f\nchannels=65\n", "channels=65: 65 channels, more than the 64",
+       StatusCode::kResourceExhausted},
       {"ImageJ=1.54f\nslices=4294967296\nframes=4294967296\n", "can hold at most"},
       {"ImageJ=1.54f\nchannels=2\nslices=2\n", "can hold at most 2 images"},
   };
@@ -468,7 +469,7 @@ TEST_F(TiffStackTest, ImageJCountsBeyondTheFileAreRefusedBeforeAllocating) {
     spec.descriptions = {c.description};
     const fs::path path = Fixture("counts.tif", spec);
     Status st = OpenTiffStack(path, OpenOptions{}).status();
-    EXPECT_EQ(st.code(), StatusCode::kCorrupt) << st.ToString();
+    EXPECT_EQ(st.code(), c.code) << st.ToString();
     ExpectErrorNaming(st, path);
     EXPECT_NE(st.message().find(c.needle), std::string::npos) << st.ToString();
   }
@@ -534,6 +535,14 @@ TEST_F(TiffStackTest, ScanImageMetadataThatDoesNotFitOpensAsAPlainStack) {
     EXPECT_EQ((*source)->info().size[2], c.z);
     EXPECT_EQ((*source)->info().channel_count(), c.channels);
     EXPECT_EQ((*source)->info().time_points, c.time_points);
+    // Metadata that does not fit is ignored with a warning, never quietly.
+    const bool plain = c.z == 4;
+    ASSERT_EQ((*source)->info().warnings.size(), plain ? 1u : 0u);
+    if (plain) {
+      const std::string& warning = (*source)->info().warnings[0];
+      EXPECT_NE(warning.find(path.string()), std::string::npos) << warning;
+      EXPECT_NE(warning.find("ScanImage metadata does not fit"), std::string::npos) << warning;
+    }
   }
 }
 
@@ -658,14 +667,13 @@ TEST_F(TiffStackTest, ImageJSingleIfdContiguousImages) {
           }
         }
         EXPECT_EQ(wrong, 0) << "c " << c << " t " << t;
-        // The images are raw runs of the file: viewed in place when in native byte order.
+        // The images are raw runs of the file: stored as read when in native byte order.
         for (int z = 0; z < 3; ++z) {
-          std::optional<std::span<const std::byte>> view = (*source)->MappedPlane(c, z);
-          ASSERT_EQ(view.has_value(), big_endian == (std::endian::native == std::endian::big));
-          if (view) {
-            EXPECT_EQ(std::vector<std::byte>(view->begin(), view->end()),
-                      std::vector<std::byte>(slab.begin() + z * 11 * 7 * 2,
-                                             slab.begin() + (z + 1) * 11 * 7 * 2));
+          std::optional<std::vector<std::byte>> plane = ReadStoredPlane(**source, c, z);
+          ASSERT_EQ(plane.has_value(), big_endian == (std::endian::native == std::endian::big));
+          if (plane) {
+            EXPECT_EQ(*plane, std::vector<std::byte>(slab.begin() + z * 11 * 7 * 2,
+                                                     slab.begin() + (z + 1) * 11 * 7 * 2));
           }
         }
         // A single-plane slab from the middle.
@@ -830,6 +838,46 @@ TEST(TiffStackRealTest, ScanImageBigTiffChannelsAndTime) {
   OpenOptions late;
   late.time = 2;
   ExpectErrorNaming(OpenTiffStack(path, late).status(), path);
+}
+
+// Issue 8: a 201-byte TIFF of 4x4 pixels claiming 65,279 samples per pixel opened as a
+// 65,279-channel volume. A plain stack's samples are its channels, so the count is refused with
+// the limit stated (volume::kMaxChannels), by every route that opens the file.
+TEST(TiffStackVolumeTest, AbsurdSampleCountsAreRefusedWithTheChannelLimit) {
+  const fs::path path = Regression("plain-tiff-65279-samples-per-pixel.tif");
+  for (const Status& st :
+       {OpenTiffStack(path, OpenOptions{}).status(), OpenVolume(path, OpenOptions{}).status()}) {
+    EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
+    ExpectErrorNaming(st, path);
+    EXPECT_NE(st.message().find("65279 samples per pixel"), std::string::npos) << st.ToString();
+    EXPECT_NE(st.message().find("more than the 64 Octoscope supports"), std::string::npos)
+        << st.ToString();
+  }
+  // 64 samples per pixel are 64 channels, each read right.
+  const fs::path dir = MakeTempDir("many-samples");
+  TiffFixtureSpec spec;
+  spec.width = 5;
+  spec.height = 3;
+  spec.pages = 2;
+  spec.samples_per_pixel = 64;
+  spec.compression = COMPRESSION_LZW;
+  ASSERT_TRUE(
+      testing::WriteTiffFixture(dir / "s64.tif", spec, PatternOf(volume::DataType::kUint16)));
+  auto source = OpenTiffStack(dir / "s64.tif", OpenOptions{});
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  ASSERT_EQ((*source)->info().channel_count(), 64);
+  std::vector<std::byte> plane((*source)->SlabBytes(1));
+  for (int c = 0; c < 64; ++c) {
+    for (int z = 0; z < 2; ++z) {
+      ASSERT_TRUE((*source)->ReadSlab(c, z, 1, plane).ok());
+      EXPECT_EQ(CountMismatches(plane, volume::DataType::kUint16, 5, 3, z, c), 0);
+    }
+  }
+  spec.samples_per_pixel = 65;
+  ASSERT_TRUE(testing::WriteTiffFixture(dir / "s65.tif", spec));
+  Status st = OpenTiffStack(dir / "s65.tif", OpenOptions{}).status();
+  EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -163,7 +163,7 @@ TEST(VolumeStatsTest, AThrowingProgressCallbackStillJoinsTheReader) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The zero-copy path (sources that offer MappedPlane views).
+// The direct path (sources that locate stored planes, read piece by piece).
 
 // Statistics computed here, independently: exact long double sums over every voxel.
 std::vector<ChannelStats> HandStats(VolumeSource& source) {
@@ -259,27 +259,31 @@ class VolumeStatsFileTest : public ::testing::Test {
   int files_ = 0;
 };
 
-TEST_F(VolumeStatsFileTest, ZeroCopyEqualsCopyPathAndHandSums) {
+TEST_F(VolumeStatsFileTest, DirectPathEqualsStreamingPathAndHandSums) {
   for (DataType type : {DataType::kUint16, DataType::kFloat32}) {
     for (int channels = 1; channels <= 3; ++channels) {
       SCOPED_TRACE(std::string(volume::NumpyName(type)) + " x" + std::to_string(channels));
       std::unique_ptr<VolumeSource> source = Write(type, channels, 7);  // Odd plane count.
       ASSERT_NE(source, nullptr);
-      ASSERT_TRUE(source->MappedPlane(0, 0).has_value());
+      ASSERT_TRUE(source->FindStoredPlane(0, 0).has_value());
       const std::vector<ChannelStats> hand = HandStats(*source);
 
       StatsOptions copy;
-      copy.zero_copy = false;
+      copy.direct = false;
       copy.slab_bytes = 1;  // One plane per slab.
       auto copied = ComputeVolumeStats(*source, copy);
       ASSERT_TRUE(copied.ok()) << copied.status().ToString();
       ExpectSameStats(*copied, hand, type);
 
-      // 1, 2, 3 and more threads than planes: shares of different (and odd) sizes.
-      for (int threads : {1, 2, 3, 64}) {
-        SCOPED_TRACE("threads " + std::to_string(threads));
+      // 1, 2, 3 and more threads than planes: shares of different (and odd) sizes; pieces of
+      // a few samples (7 bytes: 6 for uint16, 4 for float32), of an odd sample count, and whole
+      // planes.
+      for (auto [threads, piece] :
+           {std::pair<int, uint64_t>{1, 7}, {2, 1000}, {3, 1 << 17}, {64, 1 << 20}}) {
+        SCOPED_TRACE("threads " + std::to_string(threads) + " piece " + std::to_string(piece));
         StatsOptions zero;
         zero.threads = threads;
+        zero.piece_bytes = piece;
         const std::thread::id caller = std::this_thread::get_id();
         uint64_t last = 0, calls = 0;
         zero.progress = [&](uint64_t done, uint64_t total) {
@@ -303,23 +307,76 @@ TEST_F(VolumeStatsFileTest, ZeroCopyEqualsCopyPathAndHandSums) {
 TEST_F(VolumeStatsFileTest, CompressedFilesTakeTheCopyPath) {
   std::unique_ptr<VolumeSource> source = Write(DataType::kUint16, 2, 5, TiffCompression::kDeflate);
   ASSERT_NE(source, nullptr);
-  EXPECT_FALSE(source->MappedPlane(0, 0).has_value());
+  EXPECT_FALSE(source->FindStoredPlane(0, 0).has_value());
   auto stats = ComputeVolumeStats(*source, {});
   ASSERT_TRUE(stats.ok()) << stats.status().ToString();
   ExpectSameStats(*stats, HandStats(*source), DataType::kUint16);
 }
 
-// A memory-backed source that offers views of some planes only, and can fail or throw on reads
-// of the others: exercises the per-plane fallback and error handling of the zero-copy path.
-class PartlyMappedSource : public VolumeSource {
+// Issue 8: an input may still be written (or rewritten) while it is read. A file that shrinks
+// under a reader used to be memory-mapped, and touching a lost page killed the whole process with
+// SIGBUS; now every read is a positioned read, and the loss is an error naming the file.
+TEST_F(VolumeStatsFileTest, AFileTruncatedWhileBeingReadIsAnErrorNotACrash) {
+  for (bool direct : {true, false}) {
+    SCOPED_TRACE(direct ? "direct" : "streaming");
+    std::unique_ptr<VolumeSource> source = Write(DataType::kUint16, 2, 9);
+    ASSERT_NE(source, nullptr);
+    ASSERT_TRUE(source->FindStoredPlane(0, 0).has_value());
+    const std::filesystem::path path = dir_ / ("v" + std::to_string(files_ - 1) + ".ome.tif");
+    const uint64_t size = std::filesystem::file_size(path);
+    StatsOptions options;
+    options.direct = direct;
+    options.threads = 1;       // One thread: the truncation falls at a known point of the pass.
+    options.slab_bytes = 1;    // Streaming: one plane per slab.
+    options.piece_bytes = 64;  // Direct: many reads per plane.
+    // After a few planes, the file loses its second half (as a writer that starts over would).
+    options.progress = [&](uint64_t done, uint64_t) {
+      if (done == 3) std::filesystem::resize_file(path, size / 2);
+    };
+    auto stats = ComputeVolumeStats(*source, options);
+    ASSERT_FALSE(stats.ok());
+    EXPECT_EQ(stats.status().code(), StatusCode::kCorrupt) << stats.status().ToString();
+    EXPECT_NE(stats.status().message().find(path.filename().string()), std::string::npos)
+        << stats.status().ToString();
+    EXPECT_NE(stats.status().message().find("truncated"), std::string::npos)
+        << stats.status().ToString();
+    // Later reads fail the same way, and reads of what is left still work.
+    std::vector<std::byte> plane(source->SlabBytes(1));
+    EXPECT_EQ(source->ReadSlab(1, 8, 1, plane).code(), StatusCode::kCorrupt);
+    EXPECT_TRUE(source->ReadSlab(0, 0, 1, plane).ok());
+  }
+}
+
+// A memory-backed source that locates some planes only (in an in-memory "file" holding every
+// plane), and can fail or throw on reads of the others, or fail reading the file: exercises the
+// per-plane fallback and error handling of the direct path.
+class PartlyStoredSource : public VolumeSource {
  public:
-  PartlyMappedSource(std::unique_ptr<MemoryVolume> vol, std::function<bool(int, int64_t)> mapped)
-      : vol_(std::move(vol)), mapped_(std::move(mapped)) {
+  // The planes, (c, z) at (c * Z + z) * plane bytes; reads from byte `fail_from` on fail the way
+  // a file truncated there does.
+  class File : public PositionedFile {
+   public:
+    Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override {
+      if (offset + out.size() > fail_from) {
+        return CorruptError("part.tif: the file ends at offset " + std::to_string(fail_from) +
+                            ": the file is truncated");
+      }
+      std::memcpy(out.data(), bytes.data() + offset, out.size());
+      return Status::Ok();
+    }
+
+    std::vector<std::byte> bytes;
+    uint64_t fail_from = UINT64_MAX;
+  };
+
+  PartlyStoredSource(std::unique_ptr<MemoryVolume> vol, std::function<bool(int, int64_t)> stored)
+      : vol_(std::move(vol)), stored_(std::move(stored)), file_(std::make_shared<File>()) {
     const volume::VolumeInfo& i = vol_->info();
+    std::vector<std::byte> plane(vol_->SlabBytes(1));
     for (int c = 0; c < i.channel_count(); ++c) {
       for (int64_t z = 0; z < i.size[2]; ++z) {
-        planes_.emplace_back(vol_->SlabBytes(1));
-        EXPECT_TRUE(vol_->ReadSlab(c, z, 1, planes_.back()).ok());
+        EXPECT_TRUE(vol_->ReadSlab(c, z, 1, plane).ok());
+        file_->bytes.insert(file_->bytes.end(), plane.begin(), plane.end());
       }
     }
   }
@@ -332,10 +389,11 @@ class PartlyMappedSource : public VolumeSource {
     if (throw_reads) throw std::bad_alloc();
     return vol_->ReadSlab(channel, z0, nz, out);
   }
-  std::optional<std::span<const std::byte>> MappedPlane(int channel, int64_t z) const override {
-    if (!mapped_(channel, z)) return std::nullopt;
-    return std::span<const std::byte>(planes_[channel * info().size[2] + z]);
+  std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
+    if (!stored_(channel, z)) return std::nullopt;
+    return StoredPlane{file_, (channel * info().size[2] + z) * SlabBytes(1)};
   }
+  File& file() { return *file_; }
 
   std::atomic<int> reads{0};
   int64_t fail_reads_from = -1;
@@ -343,8 +401,8 @@ class PartlyMappedSource : public VolumeSource {
 
  private:
   std::unique_ptr<MemoryVolume> vol_;
-  std::function<bool(int, int64_t)> mapped_;
-  std::vector<std::vector<std::byte>> planes_;
+  std::function<bool(int, int64_t)> stored_;
+  std::shared_ptr<File> file_;
 };
 
 std::unique_ptr<MemoryVolume> Ramp(int64_t z, int channels) {
@@ -358,9 +416,9 @@ std::unique_ptr<MemoryVolume> Ramp(int64_t z, int channels) {
   return std::move(*vol);
 }
 
-TEST(VolumeStatsZeroCopyTest, PlanesWithoutViewsAreReadInstead) {
-  // Odd z planes have views, even ones are read: both kinds in every thread's share.
-  PartlyMappedSource source(Ramp(11, 2), [](int, int64_t z) { return z % 2 == 1 || z == 0; });
+TEST(VolumeStatsDirectTest, PlanesNotStoredAreReadInstead) {
+  // Odd z planes are stored, even ones are read: both kinds in every thread's share.
+  PartlyStoredSource source(Ramp(11, 2), [](int, int64_t z) { return z % 2 == 1 || z == 0; });
   StatsOptions options;
   options.threads = 2;
   auto stats = ComputeVolumeStats(source, options);
@@ -375,10 +433,10 @@ TEST(VolumeStatsZeroCopyTest, PlanesWithoutViewsAreReadInstead) {
   }
 }
 
-TEST(VolumeStatsZeroCopyTest, ReadErrorsInAnyThreadPropagate) {
-  // Plane 0 has a view (so the zero-copy path is taken); the others fail from z 8 on, which lies
-  // in the last thread's share.
-  PartlyMappedSource source(Ramp(10, 3), [](int, int64_t z) { return z < 4; });
+TEST(VolumeStatsDirectTest, ReadErrorsInAnyThreadPropagate) {
+  // Plane 0 is stored (so the direct path is taken); the others fail from z 8 on, which lies in
+  // the last thread's share.
+  PartlyStoredSource source(Ramp(10, 3), [](int, int64_t z) { return z < 4; });
   source.fail_reads_from = 8;
   StatsOptions options;
   options.threads = 3;
@@ -388,8 +446,22 @@ TEST(VolumeStatsZeroCopyTest, ReadErrorsInAnyThreadPropagate) {
   EXPECT_NE(stats.status().message().find("part.tif"), std::string::npos);
 }
 
-TEST(VolumeStatsZeroCopyTest, ExceptionsInHelperThreadsBecomeErrors) {
-  PartlyMappedSource source(Ramp(10, 1), [](int, int64_t z) { return z == 0; });
+TEST(VolumeStatsDirectTest, AFileTruncatedWhileReadIsAnErrorNamingIt) {
+  // Every plane stored; the file "ends" in the middle of the last channel's plane 6.
+  PartlyStoredSource source(Ramp(10, 2), [](int, int64_t) { return true; });
+  source.file().fail_from = (10 + 6) * source.SlabBytes(1) + 10;
+  StatsOptions options;
+  options.threads = 2;
+  options.piece_bytes = 16;
+  auto stats = ComputeVolumeStats(source, options);
+  ASSERT_FALSE(stats.ok());
+  EXPECT_EQ(stats.status().code(), StatusCode::kCorrupt);
+  EXPECT_NE(stats.status().message().find("part.tif"), std::string::npos);
+  EXPECT_NE(stats.status().message().find("truncated"), std::string::npos);
+}
+
+TEST(VolumeStatsDirectTest, ExceptionsInHelperThreadsBecomeErrors) {
+  PartlyStoredSource source(Ramp(10, 1), [](int, int64_t z) { return z == 0; });
   source.throw_reads = true;
   StatsOptions options;
   options.threads = 2;
@@ -398,8 +470,8 @@ TEST(VolumeStatsZeroCopyTest, ExceptionsInHelperThreadsBecomeErrors) {
   EXPECT_EQ(stats.status().code(), StatusCode::kResourceExhausted);
 }
 
-TEST(VolumeStatsZeroCopyTest, AThrowingProgressCallbackStillJoinsTheHelpers) {
-  PartlyMappedSource source(Ramp(40, 2), [](int, int64_t) { return true; });
+TEST(VolumeStatsDirectTest, AThrowingProgressCallbackStillJoinsTheHelpers) {
+  PartlyStoredSource source(Ramp(40, 2), [](int, int64_t) { return true; });
   StatsOptions options;
   options.threads = 4;
   options.progress = [](uint64_t done, uint64_t) {

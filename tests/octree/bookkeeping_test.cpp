@@ -1,11 +1,11 @@
-// Tests of the octree's bookkeeping helpers: WriteCoverage (completeness) and ChangeLog.
+// Tests of the octree's bookkeeping helper WriteCoverage (completeness); the change log has
+// change_log_test.cpp.
 #include <gtest/gtest.h>
 
 #include <sstream>
 #include <string>
 #include <vector>
 
-#include "octree/change_log.h"
 #include "octree/write_coverage.h"
 
 namespace octoscope::octree {
@@ -49,26 +49,6 @@ TEST(WriteCoverageTest, LoadRejectsTruncatedAndInconsistentRecords) {
   bad[0] = static_cast<char>(0xff);  // Full-row bits beyond the 6 rows.
   std::stringstream bad_stream(bad);
   EXPECT_EQ(WriteCoverage::Load(bad_stream, {5, 3, 2}).status().code(), StatusCode::kCorrupt);
-}
-
-TEST(ChangeLogTest, CoalescesUpdatesButKeepsCreationsAndDeletionsInOrder) {
-  ChangeLog log;
-  log.Append(8, NodeChangeKind::kCreated);
-  log.Append(8, NodeChangeKind::kUpdated);
-  log.Append(0, NodeChangeKind::kUpdated);
-  log.Append(8, NodeChangeKind::kUpdated);
-  log.Append(8, NodeChangeKind::kDeleted);
-  log.Append(8, NodeChangeKind::kCreated);
-  EXPECT_EQ(log.pending(), 5u);
-  const std::vector<NodeChange> expected{{8, NodeChangeKind::kCreated},
-                                         {8, NodeChangeKind::kUpdated},
-                                         {0, NodeChangeKind::kUpdated},
-                                         {8, NodeChangeKind::kDeleted},
-                                         {8, NodeChangeKind::kCreated}};
-  EXPECT_EQ(log.Drain(), expected);
-  EXPECT_EQ(log.pending(), 0u);
-  log.Append(0, NodeChangeKind::kUpdated);  // A new window: reported again.
-  EXPECT_EQ(log.Drain(), (std::vector<NodeChange>{{0, NodeChangeKind::kUpdated}}));
 }
 
 }  // namespace

@@ -601,3 +601,33 @@ TEST(BrickGeometryTest, LargestVolumeIsExactAndOverflowFree) {
 
 }  // namespace
 }  // namespace octoscope::octree
+
+namespace octoscope::octree {
+namespace {
+
+TEST(AutoBrickSizeTest, PicksTheLeastPaddingWithinSixtyFour) {
+  // Multiples of 64 keep 64.
+  EXPECT_EQ(AutoBrickSize({1024, 1024, 512}), (Vec3{64, 64, 64}));
+  // Thin stacks get shallow bricks: a single plane 2, a 30-plane stack 30.
+  EXPECT_EQ(AutoBrickSize({502, 623, 1})[2], 2);
+  EXPECT_EQ(AutoBrickSize({333, 257, 30})[2], 30);
+  for (const Vec3& size : {Vec3{133, 130, 45}, Vec3{667, 510, 30}, Vec3{1000, 77, 3},
+                           Vec3{65536, 65536, 65536}, Vec3{1, 1, 1}}) {
+    const Vec3 b = AutoBrickSize(size);
+    const uint64_t chosen = CompleteTreeStoredVoxels(size, b);
+    ASSERT_GT(chosen, 0u);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(b[a] % 2, 0);
+      EXPECT_GE(b[a], 2);
+      EXPECT_LE(b[a], 64);
+    }
+    // Never worse than the old fixed 64^3 bricks.
+    EXPECT_LE(chosen, CompleteTreeStoredVoxels(size, kDefaultBrickSize)) << size[0];
+  }
+  // The thin crop: padding roughly halves or better.
+  EXPECT_LT(CompleteTreeStoredVoxels({333, 257, 30}, AutoBrickSize({333, 257, 30})) * 2,
+            CompleteTreeStoredVoxels({333, 257, 30}, kDefaultBrickSize));
+}
+
+}  // namespace
+}  // namespace octoscope::octree

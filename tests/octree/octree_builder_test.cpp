@@ -9,6 +9,8 @@
 #include <filesystem>
 #include <stdexcept>
 #include <stop_token>
+#include <thread>
+#include <chrono>
 #include <vector>
 
 #include "io/volume_source.h"
@@ -129,15 +131,30 @@ TEST(OctreeBuilderTest, CancellationAndThrowingCallbacksEndTheBuildCleanly) {
     EXPECT_EQ(st.code(), StatusCode::kCancelled) << st.ToString();
   }
   {
+    // A source that, like a slow disk, cannot deliver planes beyond 10 until the build is stopped
+    // (at most 10 s): the build is surely still running when the progress callback stops it.
+    class StallingSource : public MemorySource {
+     public:
+      using MemorySource::MemorySource;
+      std::stop_token stop;
+      Status ReadSlab(int channel, int64_t z0, int64_t nz, std::span<std::byte> out) override {
+        for (int i = 0; z0 >= 10 && !stop.stop_requested() && i < 10000; ++i) {
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        }
+        return MemorySource::ReadSlab(channel, z0, nz, out);
+      }
+    };
+    StallingSource stalling(src, volume::DataType::kUint16);
     TreeFixture f = TreeFixture::Make(params, options);
     std::stop_source stop;
+    stalling.stop = stop.get_token();
     BuildOptions b;
     b.slab_planes = 1;
     b.stop = stop.get_token();
     b.progress = [&](const BuildProgress& p) {
       if (p.planes_read > 0) stop.request_stop();
     };
-    Status st = BuildOctree(source, maps, *f.tree, b);
+    Status st = BuildOctree(stalling, maps, *f.tree, b);
     EXPECT_EQ(st.code(), StatusCode::kCancelled) << st.ToString();
     EXPECT_FALSE(f.tree->GetNode(f.tree->geometry().RootKey())->complete);
   }

@@ -5,19 +5,27 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cstdio>
+#include <memory>
 #include <random>
+#include <span>
+#include <string>
 #include <thread>
 #include <vector>
 
+#include "change_mirror.h"
 #include "octree/octree.h"
 #include "octree_reference.h"
 
 namespace octoscope::octree {
 namespace {
 
+using testing::ChangeMirror;
 using testing::DumpTree;
+using testing::ExpectMirrors;
 using testing::ExpectSameTree;
 using testing::MakePatternVolume;
+using testing::Params;
 using testing::SourceVolume;
 using testing::TreeFixture;
 
@@ -65,6 +73,7 @@ TEST(OctreeConcurrencyTest, PerChannelInsertThreadsWithConcurrentReaders) {
     threads.emplace_back([&, r] {
       std::mt19937 rng(r);
       std::vector<std::byte> brick(tree.geometry().brick_bytes());
+      ChangeSubscription changes = tree.SubscribeChanges();
       // Keep reading while the writers run (and a little after, so the readers surely ran).
       for (int after = 0; writers_left.load() > 0 || after < 300;
            after += writers_left.load() == 0) {
@@ -87,7 +96,7 @@ TEST(OctreeConcurrencyTest, PerChannelInsertThreadsWithConcurrentReaders) {
         const NodeKey key{static_cast<int>(rng() % 2), {static_cast<int64_t>(rng() % 6), 0, 0}};
         (void)tree.GetNode(key);
         if (r == 0) {
-          (void)tree.DrainChanges();
+          (void)changes.Poll();
           (void)tree.stats();
         }
       }
@@ -98,6 +107,70 @@ TEST(OctreeConcurrencyTest, PerChannelInsertThreadsWithConcurrentReaders) {
   EXPECT_GT(nodes_read.load(), 0u);
   ExpectSameTree(DumpTree(*sequential.tree), DumpTree(tree), "concurrent vs sequential");
   EXPECT_EQ(sequential.tree->stats(), tree.stats());
+}
+
+// Change subscriptions created and polled on their own threads while another thread inserts
+// (and prunes and re-creates): each consumer subscribes and walks the tree mid-construction, and
+// its mirror equals the tree once the inserts are done and it has polled once more. One is
+// allowed a tiny backlog, so under load it is also told to resynchronise.
+TEST(OctreeConcurrencyTest, ChangeSubscriptionsFollowConcurrentInserts) {
+  const Vec3 size{24, 20, 16};
+  const int channels = 2;
+  const SourceVolume src = MakePatternVolume(size, channels, 2, 33);
+  OctreeOptions options;
+  options.brick_size = {4, 4, 4};
+  TreeFixture f = TreeFixture::Make(Params(size, options.brick_size, channels, 2), options);
+  ASSERT_TRUE(f.tree);
+  Octree& tree = *f.tree;
+
+  const std::vector<size_t> backlogs = {kDefaultChangeBacklog, 32};
+  std::atomic<size_t> subscribed{0};
+  std::atomic<bool> done{false};
+  std::atomic<bool> failed{false};
+  std::thread inserter([&] {
+    while (subscribed.load() < backlogs.size()) std::this_thread::yield();
+    const Box all{{0, 0, 0}, size};
+    const std::vector<uint16_t> constant(all.VoxelCount(), 900);
+    for (int round = 0; round < 4; ++round) {
+      for (int64_t z = 0; z < size[2]; ++z) {
+        const Box slab{{0, 0, z}, {size[0], size[1], z + 1}};
+        for (int c = 0; c < channels; ++c) {
+          if (!tree.Insert(c, slab, src.Block(c, slab, 2)).ok()) failed = true;
+        }
+      }
+      if (round == 3) break;
+      // Everything constant: the whole tree below the root is deleted, then built again.
+      for (int c = 0; c < channels; ++c) {
+        if (!tree.Insert(c, all, std::as_bytes(std::span(constant))).ok()) failed = true;
+      }
+    }
+    done = true;
+  });
+  std::vector<std::unique_ptr<ChangeMirror>> mirrors(backlogs.size());
+  std::vector<std::thread> pollers;
+  for (size_t i = 0; i < backlogs.size(); ++i) {
+    pollers.emplace_back([&, i] {
+      ChangeSubscription subscription = tree.SubscribeChanges(backlogs[i]);
+      ++subscribed;  // The inserter starts: the mirror's first walk races with it.
+      auto mirror = std::make_unique<ChangeMirror>(&tree, std::move(subscription));
+      while (!done.load()) {
+        mirror->Sync();
+        std::this_thread::yield();
+      }
+      mirror->Sync();  // Everything the inserter appended is in the log now.
+      mirrors[i] = std::move(mirror);
+    });
+  }
+  inserter.join();
+  for (std::thread& t : pollers) t.join();
+  ASSERT_FALSE(failed.load());
+  for (size_t i = 0; i < mirrors.size(); ++i) {
+    std::printf("[          ] mirror %zu: %llu events, %d resyncs\n", i,
+                static_cast<unsigned long long>(mirrors[i]->events()), mirrors[i]->resyncs());
+    ExpectMirrors(tree, *mirrors[i], "mirror " + std::to_string(i));
+  }
+  EXPECT_GT(mirrors[0]->created(), 0u);
+  EXPECT_EQ(mirrors[0]->resyncs(), 0);
 }
 
 }  // namespace

@@ -70,7 +70,7 @@ TEST(OctreePersistenceTest, SaveLoadRoundTripsAPartialTreeAndBuildingContinues) 
   ASSERT_TRUE(loaded.ok()) << loaded.status().ToString();
   Octree& tree = **loaded;
   ExpectSameTree(before, DumpTree(tree), "after load");
-  EXPECT_TRUE(tree.DrainChanges().empty());
+  EXPECT_TRUE(tree.SubscribeChanges().Poll().events.empty());  // Loading reports nothing.
   EXPECT_EQ(tree.tolerance(0), 3276u);
   EXPECT_EQ(tree.background(1), 4);
   std::ostringstream again;
@@ -172,6 +172,45 @@ TEST(OctreePersistenceTest, FailedInsertCanBeRepeated) {
   }
   EXPECT_GT(failures, 0);
   ExpectSameTree(DumpTree(*reference.tree), DumpTree(**tree), "after repaired failures");
+}
+
+}  // namespace
+}  // namespace octoscope::octree
+
+namespace octoscope::octree {
+namespace {
+
+// TryReadBrick never waits for the disk: with a one-page budget, a brick whose page was evicted
+// is kUnavailable (naming its page), and readable once the page is back in RAM.
+TEST(OctreeTryReadBrickTest, NeverLoadsAndNamesTheMissingPage) {
+  const Vec3 size{16, 8, 8};
+  const testing::SourceVolume src = testing::MakePatternVolume(size, 1, 2, 3);
+  OctreeOptions options;
+  options.brick_size = {8, 8, 8};
+  const uint64_t brick_bytes = 10 * 10 * 10 * 2;
+  testing::TreeFixture f = testing::TreeFixture::Make(
+      testing::Params(size, options.brick_size, 1, 2), options, brick_bytes, 8 * brick_bytes);
+  ASSERT_TRUE(f.tree);
+  ASSERT_TRUE(testing::InsertBlock(*f.tree, src, 0, Box{{0, 0, 0}, size}).ok());
+  ASSERT_TRUE(f.tree->Flush().ok());
+  std::vector<uint32_t> with_bricks;
+  for (const testing::NodeDump& d : testing::DumpTree(*f.tree)) {
+    if (d.has_brick) with_bricks.push_back(f.tree->GetNode(d.key)->id);
+  }
+  ASSERT_GE(with_bricks.size(), 2u);
+  std::vector<std::byte> a(f.tree->geometry().brick_bytes()), b(a.size());
+  // Resident now (just written): same bytes as ReadBrick.
+  ASSERT_TRUE(f.tree->TryReadBrick(with_bricks[0], a).ok());
+  ASSERT_TRUE(f.tree->ReadBrick(with_bricks[0], b).ok());
+  EXPECT_EQ(a, b);
+  // Shrink the cache to one page and touch another brick: the first one's page is evicted.
+  ASSERT_TRUE(f.cache->SetBudget(brick_bytes).ok());
+  ASSERT_TRUE(f.tree->ReadBrick(with_bricks[1], b).ok());
+  uint64_t page = ~uint64_t{0};
+  Status st = f.tree->TryReadBrick(with_bricks[0], a, &page);
+  EXPECT_EQ(st.code(), StatusCode::kUnavailable) << st.ToString();
+  EXPECT_NE(page, ~uint64_t{0});
+  EXPECT_EQ(f.tree->TryReadBrick(0xfffffff0u, a).code(), StatusCode::kNotFound);
 }
 
 }  // namespace

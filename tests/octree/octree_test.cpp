@@ -9,9 +9,12 @@
 #include <map>
 #include <numeric>
 #include <random>
+#include <span>
 #include <sstream>
+#include <string>
 #include <vector>
 
+#include "change_mirror.h"
 #include "octree_reference.h"
 
 namespace octoscope::octree {
@@ -19,7 +22,9 @@ namespace {
 
 using testing::BrickSample;
 using testing::BuildReference;
+using testing::ChangeMirror;
 using testing::DumpTree;
+using testing::ExpectMirrors;
 using testing::ExpectSameTree;
 using testing::InsertBox;
 using testing::MakePatternVolume;
@@ -171,7 +176,11 @@ TEST(OctreeTest, NewTreeIsARootStoringTheBackground) {
   EXPECT_EQ(root->channels[0], (ChannelSummary{7, 7, 7, 7, 7.0}));
   EXPECT_EQ(root->channels[1], (ChannelSummary{300, 300, 300, 300, 300.0}));
   EXPECT_EQ(f.tree->stats(), (OctreeStats{1, 0, 1, 0}));
-  EXPECT_EQ(f.tree->DrainChanges(), (std::vector<NodeChange>{{0, NodeChangeKind::kCreated}}));
+  // The root was created before anyone subscribed: it is in the tree, not in the change log.
+  ChangeSubscription changes = f.tree->SubscribeChanges();
+  const ChangeBatch batch = changes.Poll();
+  EXPECT_FALSE(batch.resync);
+  EXPECT_TRUE(batch.events.empty());
 }
 
 // The paper's Fig. 3 in 1-D: a 16-voxel line, bricks of 4 (x; y and z are 2 and virtual beyond
@@ -528,8 +537,10 @@ TEST(OctreeTest, OverwriteOfALossyPrunedNodeRestoresTheAverageAroundTheNewData) 
   EXPECT_EQ(leaf->channels[0].max, 1000);
 }
 
-// Replaying the change log into a mirror (id -> node, brick bytes) reproduces the tree.
-TEST(OctreeTest, ChangeLogLetsAConsumerMirrorTheTree) {
+// Several consumers replay the change log at different speeds into mirrors (id -> node, brick
+// bytes, tests/octree/change_mirror.h); each reproduces the tree exactly. The slowest, allowed
+// only a tiny backlog, is told to resynchronise and recovers by walking the tree again.
+TEST(OctreeTest, ChangeLogLetsSeveralConsumersMirrorTheTree) {
   const Vec3 size{32, 16, 8};
   const SourceVolume src = MakePatternVolume(size, 2, 2, 5);
   OctreeOptions options;
@@ -537,56 +548,47 @@ TEST(OctreeTest, ChangeLogLetsAConsumerMirrorTheTree) {
   TreeFixture f = TreeFixture::Make(Params(size, {4, 4, 2}, 2, 2), options);
   ASSERT_TRUE(f.tree);
   Octree& tree = *f.tree;
-  struct Mirrored {
-    NodeSnapshot node;
-    std::vector<std::byte> brick;
-  };
-  std::map<uint32_t, Mirrored> mirror;
-  int created = 0, deleted = 0;
-  auto apply = [&] {
-    for (const NodeChange& ch : tree.DrainChanges()) {
-      if (ch.kind == NodeChangeKind::kCreated) ++created;
-      if (ch.kind == NodeChangeKind::kDeleted) {
-        ++deleted;
-        mirror.erase(ch.node);
-      }
-      auto n = tree.GetNode(ch.node);
-      if (!n) continue;
-      Mirrored m{*n, {}};
-      if (n->has_brick()) {
-        m.brick.resize(tree.geometry().brick_bytes());
-        ASSERT_TRUE(tree.ReadBrick(n->id, m.brick).ok());
-      }
-      mirror[ch.node] = std::move(m);
+  ChangeMirror every(&tree, tree.SubscribeChanges());   // Syncs after every block.
+  ChangeMirror third(&tree, tree.SubscribeChanges());   // After every third block.
+  ChangeMirror slow(&tree, tree.SubscribeChanges(16));  // After every eighth; falls behind.
+  int step = 0;
+  const auto blocks_done = [&](const char* phase) {
+    every.Sync();
+    ASSERT_NO_FATAL_FAILURE(ExpectMirrors(tree, every, std::string(phase) + ", every block"));
+    if (++step % 3 == 0) {
+      third.Sync();
+      ASSERT_NO_FATAL_FAILURE(ExpectMirrors(tree, third, std::string(phase) + ", every third"));
     }
+    if (step % 8 == 0) slow.Sync();
   };
-  apply();
   for (const Box& b : RandomBlocks(size, 9)) {
     for (int c = 0; c < 2; ++c) InsertBox(tree, src, c, b);
-    apply();
+    ASSERT_NO_FATAL_FAILURE(blocks_done("build"));
   }
-  EXPECT_GT(created, 8);
-  EXPECT_GT(deleted, 0);  // The constant regions lost their subtrees.
-  // The mirror holds exactly the live nodes, each as it is now.
-  size_t live = 0;
-  for (uint32_t id = 0; id < 100000; ++id) {
-    auto n = tree.GetNode(id);
-    if (!n) continue;
-    ++live;
-    auto it = mirror.find(id);
-    ASSERT_NE(it, mirror.end()) << "node " << id << " never reported";
-    EXPECT_EQ(it->second.node.key, n->key);
-    EXPECT_EQ(it->second.node.child_group, n->child_group);
-    EXPECT_EQ(it->second.node.brick, n->brick);
-    EXPECT_EQ(it->second.node.channels, n->channels);
-    if (n->has_brick()) {
-      std::vector<std::byte> brick(tree.geometry().brick_bytes());
-      ASSERT_TRUE(tree.ReadBrick(id, brick).ok());
-      EXPECT_EQ(it->second.brick, brick) << "stale brick bytes for node " << id;
-    }
+  const uint64_t deleted_by_build = every.deleted();
+  // A constant half volume: its subtree is pruned; then the pattern again: nodes are re-created,
+  // reusing the freed ids.
+  const Box half{{0, 0, 0}, {16, 16, 8}};
+  std::vector<uint16_t> constant(half.VoxelCount(), 4321);
+  for (int c = 0; c < 2; ++c) {
+    ASSERT_TRUE(tree.Insert(c, half, std::as_bytes(std::span(constant))).ok());
   }
-  EXPECT_EQ(live, mirror.size());
-  EXPECT_EQ(live, tree.stats().nodes);
+  ASSERT_NO_FATAL_FAILURE(blocks_done("pruned"));
+  for (const Box& b : RandomBlocks(half.hi, 4)) {
+    for (int c = 0; c < 2; ++c) InsertBox(tree, src, c, b);
+    ASSERT_NO_FATAL_FAILURE(blocks_done("rebuilt"));
+  }
+  for (ChangeMirror* m : {&every, &third, &slow}) m->Sync();
+  EXPECT_GT(every.created(), 8u);
+  EXPECT_GT(deleted_by_build, 0u);               // The constant regions lost their subtrees.
+  EXPECT_GT(every.deleted(), deleted_by_build);  // The constant half lost its subtree.
+  EXPECT_EQ(every.resyncs(), 0);
+  EXPECT_EQ(third.resyncs(), 0);
+  EXPECT_GT(slow.resyncs(), 0);
+  EXPECT_LT(third.events(), every.events());  // Coalesced over its longer windows.
+  ExpectMirrors(tree, every, "every block");
+  ExpectMirrors(tree, third, "every third block");
+  ExpectMirrors(tree, slow, "slow, resynchronised");
 }
 
 TEST(OctreeTest, InsertRejectsBadArguments) {

@@ -1,5 +1,6 @@
 // FaultInjectingPageStore: a test PageStore that forwards to another store and fails chosen
-// operations: the Nth read or write from now, every read/write of one page, every write, Sync; a
+// operations: the Nth read or write from now, every read/write of one page (or of the pages a
+// predicate picks), every write, Sync; a
 // failing write can be made "torn" (it stores a prefix of the new page before failing, as a real
 // disk may). Hooks run before each read/write (outside this store's lock) so tests can block an
 // operation to observe what other threads do meanwhile. Reusable by the octree tests:
@@ -55,6 +56,12 @@ class FaultInjectingPageStore final : public PageStore {
   void FailWritesOfPage(std::optional<uint64_t> page) {
     std::lock_guard lock(mu_);
     fail_writes_of_page_ = page;
+  }
+  // Fail every write of a page for which `predicate` returns true (nullptr: none). Called under
+  // this store's lock: keep it simple (no calls into the store).
+  void FailWritesWhere(std::function<bool(uint64_t)> predicate) {
+    std::lock_guard lock(mu_);
+    fail_writes_where_ = std::move(predicate);
   }
   void FailAllWrites(bool fail) {
     std::lock_guard lock(mu_);
@@ -126,6 +133,7 @@ class FaultInjectingPageStore final : public PageStore {
       if (fail_write_countdown_ != 0 && --fail_write_countdown_ == 0) fail = true;
       if (fail_every_nth_write_ != 0 && writes_ % fail_every_nth_write_ == 0) fail = true;
       if (fail_writes_of_page_ && *fail_writes_of_page_ == page) fail = true;
+      if (fail_writes_where_ && fail_writes_where_(page)) fail = true;
       if (fail_all_writes_) fail = true;
       if (fail) ++failed_writes_;
       torn = torn_write_bytes_;
@@ -161,6 +169,7 @@ class FaultInjectingPageStore final : public PageStore {
   uint64_t fail_every_nth_write_ = 0;
   std::optional<uint64_t> fail_reads_of_page_;
   std::optional<uint64_t> fail_writes_of_page_;
+  std::function<bool(uint64_t)> fail_writes_where_;
   bool fail_all_writes_ = false;
   bool fail_sync_ = false;
   uint64_t torn_write_bytes_ = 0;

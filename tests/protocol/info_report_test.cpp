@@ -39,7 +39,15 @@ TEST(InfoReportTest, MetadataFields) {
   EXPECT_EQ(j["series_count"], 3);
   EXPECT_EQ(j["time"], 2);
   EXPECT_EQ(j["time_points"], 4);
+  EXPECT_EQ(j["warnings"], nlohmann::json::array());
   EXPECT_FALSE(j.contains("min"));
+}
+
+TEST(InfoReportTest, WarningsAreListed) {
+  volume::VolumeInfo info = SampleInfo();
+  info.warnings = {"a.ome.tif: OME-XML is malformed; read as a plain TIFF instead", "second"};
+  auto j = nlohmann::json::parse(InfoReportJson(info, std::nullopt));
+  EXPECT_EQ(j["warnings"], nlohmann::json(info.warnings));
 }
 
 TEST(InfoReportTest, StatsFieldsWithNullForMissing) {

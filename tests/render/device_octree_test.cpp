@@ -322,12 +322,14 @@ TEST(DeviceOctreeTest, IncrementalSyncWritesOnlyChangedEntries) {
   EXPECT_EQ(stats.entries_written, 0u);
 }
 
-TEST(DeviceOctreeTest, SyncDuringConstructionNeverPointsAtUnwrittenChildren) {
-  OCTO_REQUIRE_OPENCL_DEVICE();
+// With `change_backlog` small, Syncs also resynchronise (walk the tree again) mid-construction.
+void SyncDuringConstruction(size_t change_backlog) {
   SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 2);
   auto scene = EmptySceneWithBackground(spec);
   ASSERT_NE(scene, nullptr);
-  auto dev = MakeDevice(scene->tree.get());
+  DeviceOctreeOptions options;
+  options.change_backlog = change_backlog;
+  auto dev = MakeDevice(scene->tree.get(), options);
   ASSERT_NE(dev, nullptr);
   std::atomic<bool> done{false};
   Status insert_status;
@@ -340,12 +342,15 @@ TEST(DeviceOctreeTest, SyncDuringConstructionNeverPointsAtUnwrittenChildren) {
   const size_t words = static_cast<size_t>(octree::NodeWords(2));
   int syncs = 0;
   int partial = 0;  // Syncs whose buffer differed from the tree a moment later (mid-insert).
+  int resyncs = 0;
   uint64_t checked_groups = 0;
   for (bool last = false; !last;) {
     last = done.load();  // One more Sync after the inserter finished.
-    const Status sync = dev->Sync();
+    SyncStats stats;
+    const Status sync = dev->Sync(&stats);
     ASSERT_TRUE(sync.ok()) << sync.ToString();
     ++syncs;
+    resyncs += stats.resynchronised ? 1 : 0;
     // Follow the DEVICE buffer's child groups from the root: every child entry it reaches must
     // be a live node of the tree (nothing is ever deleted in this volume), encoded as that node.
     const std::vector<uint32_t> device = DeviceNodes(*dev);
@@ -380,9 +385,133 @@ TEST(DeviceOctreeTest, SyncDuringConstructionNeverPointsAtUnwrittenChildren) {
   ASSERT_TRUE(insert_status.ok()) << insert_status.ToString();
   EXPECT_GT(syncs, 1);
   EXPECT_GT(checked_groups, 0u);
-  std::printf("[          ] %d syncs while inserting, %d saw a partial tree\n", syncs, partial);
+  std::printf(
+      "[          ] backlog %zu: %d syncs while inserting, %d saw a partial tree, %d "
+      "resynchronised\n",
+      change_backlog, syncs, partial, resyncs);
+  if (change_backlog >= octree::kDefaultChangeBacklog) {
+    EXPECT_EQ(resyncs, 0);
+  }
   EXPECT_EQ(
       FirstDifference(DeviceNodes(*dev), ExpectedNodes(*scene->tree, dev->node_capacity()), 2), -1);
+}
+
+TEST(DeviceOctreeTest, SyncDuringConstructionNeverPointsAtUnwrittenChildren) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SyncDuringConstruction(octree::kDefaultChangeBacklog);
+}
+
+TEST(DeviceOctreeTest, ResyncDuringConstructionNeverPointsAtUnwrittenChildren) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SyncDuringConstruction(8);  // Fewer than one plane inserts: Syncs often walk the tree.
+}
+
+// A mirror whose Syncs stopped while the tree changed a lot (everything pruned, then built
+// again with other values, reusing ids) is told by its change subscription to resynchronise: Sync
+// walks the tree and the node buffer equals an independent encoding again; resident bricks that
+// kept their node are refreshed first by the next upload and equal ReadBrick; afterwards Sync is
+// incremental again.
+TEST(DeviceOctreeTest, AMirrorThatFellBehindResynchronisesFromTheTree) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 2);
+  spec.size = {32, 32, 32};
+  auto scene = Scene(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  DeviceOctreeOptions options;
+  options.change_backlog = 16;
+  auto dev = MakeDevice(&tree, options);
+  ASSERT_NE(dev, nullptr);
+  ASSERT_TRUE(dev->UploadAll(Ids(Bricked(tree)), 0).ok());
+  ASSERT_GT(dev->resident_bricks(), 16u);
+
+  const octree::Box all{{0, 0, 0}, {32, 32, 32}};
+  std::vector<uint16_t> constant(all.VoxelCount(), 500);
+  for (int c = 0; c < 2; ++c) {
+    ASSERT_TRUE(tree.Insert(c, all, std::as_bytes(std::span(constant))).ok());
+  }
+  ASSERT_FALSE(tree.GetNode(0)->has_children());
+  for (auto& channel : scene->voxels) {
+    for (auto& v : channel) v = static_cast<uint16_t>(v ^ 0x3c3cu);
+  }
+  ASSERT_TRUE(scene->InsertPlanes(0, 32).ok());
+
+  SyncStats sync;
+  ASSERT_TRUE(dev->Sync(&sync).ok());
+  EXPECT_TRUE(sync.resynchronised);
+  EXPECT_EQ(sync.changes, 0u);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+      -1);
+  // Bricks still resident belong to a node with the same key that owns a brick: stale until the
+  // next upload refreshes them; those that lost theirs were freed.
+  EXPECT_EQ(sync.stale_bricks, dev->resident_bricks());
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  UploadStats up;
+  ASSERT_TRUE(dev->Upload({}, budget, &up).ok());
+  EXPECT_EQ(up.reuploaded, sync.stale_bricks);
+  ASSERT_TRUE(dev->UploadAll(Ids(Bricked(tree)), 0).ok());
+  for (const NodeSnapshot& node : Bricked(tree)) {
+    ASSERT_TRUE(dev->SlotOf(node.id).has_value()) << node.id;
+    ASSERT_EQ(DeviceBrick(*dev, *dev->SlotOf(node.id)), HostBrick(tree, node.id)) << node.id;
+  }
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+      -1);
+
+  // A small change fits the backlog: incremental again.
+  const octree::Box box{{9, 9, 9}, {11, 11, 10}};
+  std::vector<uint16_t> data(box.VoxelCount(), 4242);
+  ASSERT_TRUE(tree.Insert(0, box, std::as_bytes(std::span(data))).ok());
+  ASSERT_TRUE(dev->Sync(&sync).ok());
+  EXPECT_FALSE(sync.resynchronised);
+  EXPECT_GT(sync.changes, 0u);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+      -1);
+}
+
+// Two mirrors of one tree (two devices, or a renderer and a slicer) each get every change, at
+// their own pace.
+TEST(DeviceOctreeTest, TwoMirrorsOfOneTreeEachGetEveryChange) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 1);
+  auto scene = EmptySceneWithBackground(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  auto often = MakeDevice(&tree);
+  auto rarely = MakeDevice(&tree);
+  ASSERT_NE(often, nullptr);
+  ASSERT_NE(rarely, nullptr);
+  for (int64_t z = 0; z < spec.size[2]; z += 8) {
+    ASSERT_TRUE(scene->InsertPlanes(z, z + 8).ok());
+    SyncStats stats;
+    ASSERT_TRUE(often->Sync(&stats).ok());
+    EXPECT_GT(stats.changes, 0u);
+    EXPECT_EQ(FirstDifference(DeviceNodes(*often), ExpectedNodes(tree, often->node_capacity()), 1),
+              -1)
+        << "planes " << z;
+    if (z % 16 == 8) {
+      ASSERT_TRUE(rarely->Sync(&stats).ok());
+      EXPECT_GT(stats.changes, 0u);
+      EXPECT_FALSE(stats.resynchronised);
+      EXPECT_EQ(
+          FirstDifference(DeviceNodes(*rarely), ExpectedNodes(tree, rarely->node_capacity()), 1),
+          -1)
+          << "planes " << z;
+    }
+  }
+  // A mirror created now starts from the tree as it is and then follows the changes too.
+  auto late = MakeDevice(&tree);
+  ASSERT_NE(late, nullptr);
+  const octree::Box box{{3, 3, 3}, {6, 6, 6}};
+  std::vector<uint16_t> data(box.VoxelCount(), 60000);
+  ASSERT_TRUE(tree.Insert(0, box, std::as_bytes(std::span(data))).ok());
+  for (DeviceOctree* dev : {often.get(), rarely.get(), late.get()}) {
+    ASSERT_TRUE(dev->Sync().ok());
+    EXPECT_EQ(FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity()), 1), -1);
+  }
 }
 
 TEST(DeviceOctreeTest, SplitBrickBufferHoldsEveryBrickInItsAllocation) {

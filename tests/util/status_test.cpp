@@ -23,6 +23,12 @@ TEST(StatusTest, ErrorCarriesCodeAndMessage) {
   EXPECT_EQ(s.WithContext("open").code(), StatusCode::kCorrupt);
 }
 
+TEST(StatusTest, UnavailableNamesItsKind) {
+  Status s = UnavailableError("/c: locked by another process");
+  EXPECT_EQ(s.code(), StatusCode::kUnavailable);
+  EXPECT_EQ(s.ToString(), "unavailable: /c: locked by another process");
+}
+
 Result<int> Half(int v) {
   if (v % 2) return InvalidArgumentError(std::to_string(v) + " is odd");
   return v / 2;

@@ -26,5 +26,17 @@ TEST(VolumeInfoTest, ValidateCatchesNonsense) {
   EXPECT_FALSE(info.Validate().ok());
 }
 
+TEST(VolumeInfoTest, ChannelCountIsLimited) {
+  VolumeInfo info;
+  info.channels.resize(kMaxChannels);
+  EXPECT_TRUE(info.Validate().ok());
+  info.channels.resize(kMaxChannels + 1);
+  const Status status = info.Validate();
+  EXPECT_EQ(status.code(), StatusCode::kResourceExhausted);
+  EXPECT_NE(status.message().find("65 channels, more than the 64 Octoscope supports"),
+            std::string::npos)
+      << status.ToString();
+}
+
 }  // namespace
 }  // namespace octoscope::volume
