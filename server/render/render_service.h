@@ -69,7 +69,7 @@
 #include "render/device_octree.h"
 #include "render/linear_algebra.h"
 #include "render/program_cache.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "render/slice_renderer.h"
 #include "render/volume_renderer.h"

@@ -67,7 +67,7 @@
 #include "render/device_octree.h"
 #include "render/linear_algebra.h"
 #include "render/program_cache.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "util/result.h"
 #include "util/status.h"
