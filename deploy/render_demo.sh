@@ -3,7 +3,7 @@
 # demo specimen (a synthetic 3-channel fluorescent embryo, OME-TIFF), read it back slab by slab
 # (metadata and per-channel statistics), build its multi-resolution octree cache and render it
 # (OpenCL ray casting: a DVR view and a MIP view, PNG) with the colours of deploy/demo_params.json.
-# Usage: bash deploy/run_demo.sh [--size X,Y,Z]   (default 256,256,128)
+# Usage: bash deploy/render_demo.sh [--size X,Y,Z]   (default 256,256,128)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/deploy/install_deps.sh"

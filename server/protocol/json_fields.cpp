@@ -1,10 +1,9 @@
 #include "protocol/json_fields.h"
 
-#include "protocol/json_parse.h"
-
 #include <exception>
 #include <stdexcept>
 
+#include "protocol/json_parse.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -34,7 +33,8 @@ Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint6
                                 " bytes");
   }
   Result<json> parsed = ParseJsonLimited(text, max_depth);
-  if (!parsed.ok()) return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
+  if (!parsed.ok())
+    return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
   json doc = std::move(*parsed);
   if (!doc.is_object()) {
     return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
