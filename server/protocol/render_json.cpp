@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "protocol/json_parse.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -41,20 +42,12 @@ Result<json> ParseObject(std::string_view text, std::string_view what) {
     return InvalidArgumentError(std::string(what) + ": larger than " +
                                 std::to_string(kMaxRenderJsonBytes) + " bytes");
   }
-  json doc;
-  try {
-    // Hostile nesting is refused while parsing: no valid document nests deeper than a LUT
-    // (object > array > array > number), and deep trees cost recursion elsewhere (dump()).
-    const json::parser_callback_t limit_depth = [](int depth, json::parse_event_t, json&) {
-      if (depth > kMaxRenderJsonDepth) throw std::length_error("nested too deeply");
-      return true;
-    };
-    doc = json::parse(text.begin(), text.end(), limit_depth);
-  } catch (const std::exception& e) {
-    // e.what() names the position; it may quote the input, so it is shortened.
-    return InvalidArgumentError(std::string(what) +
-                                ": not valid JSON: " + Printable(e.what(), 200));
-  }
+  // Hostile nesting is refused while parsing: no valid document nests deeper than a LUT
+  // (object > array > array > number).
+  Result<json> parsed = ParseJsonLimited(text, kMaxRenderJsonDepth);
+  if (!parsed.ok())
+    return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
+  json doc = std::move(*parsed);
   if (!doc.is_object()) {
     return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
   }
