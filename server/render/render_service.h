@@ -9,10 +9,11 @@
 //
 // Results. Every request that is not replaced, superseded or closed ends in exactly ONE callback
 // with final == true; a refinement's passes before it give progress callbacks (final == false)
-// unless progress_images is false. A FrameResult carries the float RGBA image and FrameStats plus
-// the request's identifying fields: view, dataset, sequence and version (echoed), kind, mode (full
-// frame = interactive tier, refine = refinement tier), stats.passes (passes so far),
-// stats.finished_fraction (refinement progress, 0..1) and final.
+// unless progress_images is false. A FrameResult carries the image (RenderImage: width x height
+// RGBA floats), FrameStats (stats.ms_total: render ms so far) and the request's identifying
+// fields: view, dataset, sequence and version (echoed), kind, mode (full frame = interactive
+// tier, refine = refinement tier), stats.passes (passes so far), stats.finished_fraction
+// (refinement progress, 0..1) and final.
 //
 // Errors. Submit answers at once only kNotFound (view not open), kInvalidArgument (no camera
 // / no slice) and kInternal once the render thread itself failed (host memory exhausted outside
