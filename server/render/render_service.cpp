@@ -296,15 +296,23 @@ void RenderService::Run(std::function<void(Status)> init) {
   init(Status::Ok());
   // Outside a pass (whose exceptions end only its request) the loop only allocates host memory;
   // should that fail, the service stops serving and says why instead of terminating.
+  std::string failure;
   try {
     worker->Loop();
+    return;
   } catch (const std::exception& e) {
-    std::lock_guard lock(mu_);
-    failed_ = InternalError(std::string("RenderService: the render thread failed: ") + e.what());
+    failure = e.what();
   } catch (...) {
-    std::lock_guard lock(mu_);
-    failed_ = InternalError("RenderService: the render thread failed");
+    failure = "unknown exception";
   }
+  {
+    std::lock_guard lock(mu_);
+    failed_ = InternalError("RenderService: the render thread failed: " + failure);
+    calling_view_ = 0;
+  }
+  // Nobody waits for this thread any more (RemoveDataset, CloseView).
+  dropped_cv_.notify_all();
+  callback_cv_.notify_all();
 }
 
 void RenderService::Worker::Loop() {
@@ -1127,7 +1135,7 @@ void RenderService::RemoveDataset(DatasetKey dataset) {
   if (std::this_thread::get_id() == render_thread_id_) return;  // From a callback: no waiting.
   // The render thread drops the mirror after its current pass; a callback of the dataset's views
   // may be running meanwhile.
-  dropped_cv_.wait(lock, [&] { return dropped_.count(dataset) != 0 || stop_; });
+  dropped_cv_.wait(lock, [&] { return dropped_.count(dataset) != 0 || stop_ || !failed_.ok(); });
   callback_cv_.wait(lock, [&] { return closed.count(calling_view_) == 0; });
   dropped_.erase(dataset);
   bool shared_cache = false;
