@@ -86,6 +86,7 @@ struct Job {
   FrameOptions options;                       // Resolved (request's or the default).
   std::unique_ptr<Refinement> refinement;     // Volume refinements, once started.
   FrameStats slice_stats;                     // Slice refinements: summed over the passes.
+  double charged_ms = 0;                      // Render-thread time charged for its passes.
   uint64_t slice_last_requests = UINT64_MAX;  // Slice refinements: requests of the last pass.
   // Waiting for brick pages (a pass that advanced nothing because its bricks are not in RAM): not
   // scheduled until every awaited page completed (any completion of the dataset when none could
@@ -213,6 +214,7 @@ struct RenderService::Worker {
   Result<Mirror*> MirrorFor(DatasetKey key);
   void RequestPages(DatasetKey key, Job* job, PageOutcome* outcome);
   void Deliver(ViewId view, const std::shared_ptr<FrameCallback>& callback, FrameResult result) {
+    result.scheduled_ms = step_charged_before + std::max(0.0, MsSince(step_start) - callback_ms);
     CountAllocations();  // Whoever sees the frame sees its allocations counted.
     callback_ms += s.Deliver(view, callback, std::move(result));
   }
@@ -271,8 +273,10 @@ struct RenderService::Worker {
   bool class_busy[2] = {false, false};
   bool refined_while_full_waited = false;
   ViewId cursor[2] = {0, 0};
-  double callback_ms = 0;  // Time spent in callbacks during the current step.
-  ViewId step_view = 0;    // The current step's view, and its buffers' allocations counted.
+  double callback_ms = 0;          // Time spent in callbacks during the current step.
+  Clock::time_point step_start;    // The current step's start,
+  double step_charged_before = 0;  // and its job's charged time before it.
+  ViewId step_view = 0;            // The current step's view, and its buffers' allocations counted.
   uint64_t step_allocations = 0;
 };
 
@@ -732,6 +736,16 @@ void RenderService::Worker::RunStep(Step& step) {
   const Clock::time_point start = Clock::now();
   callback_ms = 0;
   const ViewId view = step.view;
+  step_start = start;
+  const auto job_of_step = [&]() -> Job* {
+    const bool job_step =
+        step.kind == Step::Kind::kRefinePass || step.kind == Step::Kind::kStartRefinement;
+    const auto it = jobs.find(view);
+    return job_step && it != jobs.end() ? it->second.get() : nullptr;
+  };
+  step_charged_before = step.kind == Step::Kind::kRefinePass && job_of_step() != nullptr
+                            ? job_of_step()->charged_ms
+                            : 0;
   step_view = view;
   step_allocations = State(view).buffers.allocations();
   // Exceptions never leave the render thread: one that escapes a pass (e.g. bad_alloc for an
@@ -761,6 +775,7 @@ void RenderService::Worker::RunStep(Step& step) {
   const double weight = c == kRefinement ? s.options_.refine_share : 1 - s.options_.refine_share;
   class_vt[c] += ms / weight;
   if (const auto it = views.find(view); it != views.end()) it->second->deficit[c] -= ms;
+  if (Job* job = job_of_step(); job != nullptr) job->charged_ms += ms;
   CountAllocations();
   std::lock_guard lock(s.mu_);
   (c == kRefinement ? s.stats_.refine_ms : s.stats_.full_frame_ms) += ms;

@@ -113,6 +113,9 @@ struct FrameResult {
   // Of this request so far (all passes). Slices: ms_total, passes, samples, requests,
   // bricks_uploaded, final (the last frame requested nothing); finished_fraction 1.
   FrameStats stats;
+  // Render-thread time this request was charged so far (what fair scheduling counts: its passes,
+  // the service's work around them, callbacks excluded), up to this callback.
+  double scheduled_ms = 0;
   // The last result for this request: a full frame, the last refinement pass (complete or
   // max_passes reached), or an error.
   bool final = false;
