@@ -5,7 +5,8 @@
 //
 // The folder holds `octoscope.json`, the acquisition's description (protocol::ParseStreamRequest
 // kSidecar: size, channels, dtype, spacing, names, index_base), and plane files named by
-// io/slice_names.h — "z0012.tif", "img_c1_z0012.tif", or channel sub-folders "ch1/0012.tif".
+// io/slice_names.h — "z0012.tif" (one channel), "img_c1_z0012.tif", or channel sub-folders
+// "ch1/0012.tif"; numbers count from index_base.
 // A file is read only once it is COMPLETE: its size and modification time unchanged for
 // settle_time, and then it must decode as exactly one plane of the described size and type
 // (a truncated TIFF does not). A file that stays unreadable is reported once and skipped until it

@@ -46,7 +46,7 @@ bool WaitFor(const std::function<bool()>& done, milliseconds timeout = milliseco
 TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   const fs::path dir = testing::MakeTempDir("folder-watcher");
   const fs::path watched = dir / "acquisition";
-  fs::create_directories(watched / "ch1");
+  fs::create_directories(watched / "ch2");
   RegistryOptions options;
   options.cache_root = dir / "cache";
   auto registry = DatasetRegistry::Create(options);
@@ -59,7 +59,8 @@ TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   auto watcher = FolderWatcher::Start(registry->get(), watched, &logger, watch);
   ASSERT_TRUE(watcher.ok());
 
-  // The sidecar, then channel 0 as "z####.tif" in the folder and channel 1 in ch1/ (1-based).
+  // The sidecar, then channel 0 as "img_c1_z####.tif" in the folder and channel 1 in ch2/
+  // (numbered from 1, as index_base says).
   std::ofstream(watched / kWatchSidecarName)
       << R"({"name":"run 1","size":[16,12,4],"channels":2,"dtype":"uint16","index_base":1})";
   ASSERT_TRUE(WaitFor([&] { return !(*watcher)->stats().dataset_id.empty(); }));
@@ -72,19 +73,21 @@ TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   ASSERT_TRUE(WritePlane(complete, 0, 1));
   std::ifstream in(complete, std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(in)), {});
-  std::ofstream(watched / "z0002.tif", std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  std::ofstream(watched / "img_c1_z0002.tif", std::ios::binary) << bytes.substr(0, bytes.size() / 2);
   for (int z = 0; z < kZ; ++z) {
-    if (z != 1)
-      ASSERT_TRUE(
-          WritePlane(watched / ("z" + std::to_string(1000 + z + 1).substr(1) + ".tif"), 0, z));
-    ASSERT_TRUE(WritePlane(watched / "ch1" / (std::to_string(z + 1) + ".tif"), 1, z));
+    char name[40];
+    std::snprintf(name, sizeof name, "img_c1_z%04d.tif", z + 1);
+    if (z != 1) {
+      ASSERT_TRUE(WritePlane(watched / name, 0, z));
+    }
+    ASSERT_TRUE(WritePlane(watched / "ch2" / (std::to_string(z + 1) + ".tif"), 1, z));
   }
   ASSERT_TRUE(WaitFor([&] { return (*watcher)->stats().planes_ingested == 7; }));
   std::this_thread::sleep_for(milliseconds(400));
   EXPECT_EQ((*watcher)->stats().planes_ingested, 7u);  // The truncated file was not read.
   EXPECT_EQ(dataset->status().state, DatasetState::kStreaming);
   // The writer finishes the file: it arrives, and the acquisition is complete.
-  std::ofstream(watched / "z0002.tif", std::ios::binary) << bytes;
+  std::ofstream(watched / "img_c1_z0002.tif", std::ios::binary) << bytes;
   ASSERT_TRUE(WaitFor([&] { return dataset->status().state == DatasetState::kReady; }));
   EXPECT_EQ((*watcher)->stats().planes_ingested, 8u);
   EXPECT_EQ((*watcher)->stats().bad_files, 0u);
