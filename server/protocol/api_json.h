@@ -1,29 +1,23 @@
-// HTTP API documents (docs/api.md): error bodies, the health document, the body of POST
-// /api/datasets and the query of PUT /api/datasets/{id}/slabs. Parsers are strict (unknown
-// fields and parameters refused by name, ranges checked) and bounded; they never throw.
+// HTTP API documents (docs/api.md) other than the dataset layer's (protocol/dataset_json.h):
+// error bodies, the health document, and the query and answer of PUT /api/datasets/{id}/slabs.
+// Parsers are strict (unknown parameters refused by name, ranges checked) and bounded; they
+// never throw.
 //
 // Thread safety: pure functions.
 #ifndef OCTOSCOPE_PROTOCOL_API_JSON_H_
 #define OCTOSCOPE_PROTOCOL_API_JSON_H_
 
-#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <string>
 #include <string_view>
-#include <vector>
 
 #include "util/result.h"
-#include "volume/data_type.h"
 
 namespace octoscope::protocol {
 
-// Largest JSON request body (the net layer refuses larger ones with 413 before parsing).
+// Largest JSON request body (the net layer refuses larger ones with 413 before reading them).
 inline constexpr size_t kMaxApiJsonBodyBytes = size_t{64} << 10;
-inline constexpr int kMaxApiJsonDepth = 8;
-inline constexpr size_t kMaxDatasetNameBytes = 256;
-inline constexpr size_t kMaxChannelNameBytes = 256;
-inline constexpr double kMaxSpacingUm = 1e6;
 
 // {"error": MESSAGE}; the message is made one line of at most 1000 bytes.
 std::string HttpErrorJson(std::string_view message);
@@ -37,24 +31,10 @@ struct HealthInfo {
 // {"status":"ok","version":..,"uptime_s":..,"datasets":..,"sessions":..}
 std::string HealthJson(const HealthInfo& health);
 
-// The body of POST /api/datasets.
-struct CreateDatasetRequest {
-  std::string name;                  // 1..kMaxDatasetNameBytes, no control characters.
-  std::array<int64_t, 3> size{};     // Voxels, each in [1, octree::kMaxVolumeAxis].
-  int channels = 1;                  // [1, octree::kMaxChannels].
-  volume::DataType dtype = volume::DataType::kUint16;  // uint8, uint16, int8 or int16.
-  std::array<double, 3> spacing{1, 1, 1};              // µm, each in (0, kMaxSpacingUm].
-  std::vector<std::string> channel_names;              // Empty, or one per channel.
-};
-Result<CreateDatasetRequest> ParseCreateDatasetRequest(std::string_view body);
-
-// {"id": ID}
-std::string CreatedDatasetJson(std::string_view id);
-
 // The query of PUT /api/datasets/{id}/slabs: z, depth, channel, optional wait (0 or 1, default
 // 1); a "token" parameter is ignored (the net layer checked it). Ranges not depending on the
-// dataset are checked here (z + depth within octree::kMaxVolumeAxis, channel below
-// octree::kMaxChannels); the dataset checks its own size.
+// dataset are checked here (z + depth within kMaxStreamAxis, channel below
+// kMaxStreamChannels); the dataset checks its own size.
 struct SlabQuery {
   int64_t z = 0;
   int64_t depth = 0;

@@ -1,14 +1,14 @@
 #include "protocol/json_fields.h"
 
-#include <cmath>
 #include <exception>
 #include <stdexcept>
-#include <vector>
 
 #include "util/strings.h"
 
-namespace octoscope::protocol::json_fields {
+namespace octoscope::protocol {
 namespace {
+
+using nlohmann::json;
 
 // Thrown from the parser callback to stop parsing at the first limit broken.
 class LimitError : public std::runtime_error {
@@ -16,36 +16,51 @@ class LimitError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
-std::string FormatNumber(double v) { return Json(v).dump(); }
-
 }  // namespace
 
-Result<Json> ParseObject(std::string_view text, std::string_view what, const ParseLimits& limits) {
-  if (text.size() > limits.max_bytes) {
+Status FieldError(const std::string& path, std::string_view problem) {
+  return InvalidArgumentError(path + ": " + std::string(problem));
+}
+
+std::string TypeOf(const json& j) { return std::string(j.type_name()); }
+
+std::string FormatDouble(double v) { return json(v).dump(); }
+
+std::string Join(const std::string& path, std::string_view key) {
+  return path.empty() ? std::string(key) : path + "." + std::string(key);
+}
+
+std::string Index(const std::string& path, size_t i) {
+  return path + "[" + std::to_string(i) + "]";
+}
+
+Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint64_t max_bytes,
+                             int max_depth, size_t max_string_bytes) {
+  if (text.size() > max_bytes) {
     return InvalidArgumentError(std::string(what) + ": " + std::to_string(text.size()) +
-                                " bytes, at most " + std::to_string(limits.max_bytes));
+                                " bytes, larger than " + std::to_string(max_bytes));
   }
-  // One set of keys per open object, to refuse duplicates ({"a":1,"a":2} would otherwise mean
-  // whatever the last one says).
+  // The keys of each open object, to refuse duplicates ({"a":1,"a":2} would otherwise mean
+  // whatever the last one says). Objects are small (every schema's is), so a list is enough.
   std::vector<std::vector<std::string>> open_objects;
-  const Json::parser_callback_t check = [&](int depth, Json::parse_event_t event, Json& parsed) {
+  const json::parser_callback_t check = [&](int depth, json::parse_event_t event, json& parsed) {
     switch (event) {
-      case Json::parse_event_t::object_start:
-      case Json::parse_event_t::array_start:
+      case json::parse_event_t::object_start:
+      case json::parse_event_t::array_start:
         // `depth` counts the containers already open around this one.
-        if (depth + 1 > limits.max_depth) {
-          throw LimitError("nested deeper than " + std::to_string(limits.max_depth) + " levels");
+        if (depth + 1 > max_depth) {
+          throw LimitError("nested too deeply (more than " + std::to_string(max_depth) +
+                           " levels)");
         }
-        if (event == Json::parse_event_t::object_start) open_objects.emplace_back();
+        if (event == json::parse_event_t::object_start) open_objects.emplace_back();
         break;
-      case Json::parse_event_t::object_end:
+      case json::parse_event_t::object_end:
         if (!open_objects.empty()) open_objects.pop_back();
         break;
-      case Json::parse_event_t::key: {
+      case json::parse_event_t::key: {
         const std::string& key = parsed.get_ref<const std::string&>();
-        if (key.size() > limits.max_string_bytes) {
-          throw LimitError("a key is longer than " + std::to_string(limits.max_string_bytes) +
-                           " bytes");
+        if (key.size() > max_string_bytes) {
+          throw LimitError("a key is longer than " + std::to_string(max_string_bytes) + " bytes");
         }
         if (!open_objects.empty()) {
           std::vector<std::string>& keys = open_objects.back();
@@ -56,26 +71,25 @@ Result<Json> ParseObject(std::string_view text, std::string_view what, const Par
         }
         break;
       }
-      case Json::parse_event_t::value:
-        if (parsed.is_string() &&
-            parsed.get_ref<const std::string&>().size() > limits.max_string_bytes) {
-          throw LimitError("a string is longer than " + std::to_string(limits.max_string_bytes) +
+      case json::parse_event_t::value:
+        if (parsed.is_string() && parsed.get_ref<const std::string&>().size() > max_string_bytes) {
+          throw LimitError("a string is longer than " + std::to_string(max_string_bytes) +
                            " bytes");
         }
         break;
-      case Json::parse_event_t::array_end:
+      case json::parse_event_t::array_end:
         break;
     }
     return true;
   };
-  Json doc;
+  json doc;
   try {
-    doc = Json::parse(text.begin(), text.end(), check);
+    doc = json::parse(text.begin(), text.end(), check);
   } catch (const LimitError& e) {
     return InvalidArgumentError(std::string(what) + ": " + e.what());
   } catch (const std::exception& e) {
     // e.what() names the position; it may quote the input, so it is shortened and escaped.
-    return InvalidArgumentError(std::string(what) + ": not valid JSON: " + Printable(e.what(), 160));
+    return InvalidArgumentError(std::string(what) + ": not valid JSON: " + Printable(e.what(), 200));
   }
   if (!doc.is_object()) {
     return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
@@ -83,24 +97,7 @@ Result<Json> ParseObject(std::string_view text, std::string_view what, const Par
   return doc;
 }
 
-std::string TypeOf(const Json& j) {
-  if (j.is_number()) return "number";
-  return std::string(j.type_name());
-}
-
-std::string Join(std::string_view path, std::string_view key) {
-  return path.empty() ? std::string(key) : std::string(path) + "." + std::string(key);
-}
-
-std::string Index(std::string_view path, size_t i) {
-  return std::string(path) + "[" + std::to_string(i) + "]";
-}
-
-Status FieldError(std::string_view path, std::string_view problem) {
-  return InvalidArgumentError(std::string(path) + ": " + std::string(problem));
-}
-
-Status CheckKeys(const Json& object, std::string_view path,
+Status CheckKeys(const json& object, const std::string& path,
                  std::initializer_list<std::string_view> known) {
   for (const auto& item : object.items()) {
     bool found = false;
@@ -115,51 +112,61 @@ Status CheckKeys(const Json& object, std::string_view path,
   return Status::Ok();
 }
 
-Status CheckObject(const Json& j, std::string_view path) {
+Status CheckObject(const json& j, const std::string& path) {
   if (!j.is_object()) return FieldError(path, "must be an object, got " + TypeOf(j));
   return Status::Ok();
 }
 
-Result<const Json*> Require(const Json& object, std::string_view path, std::string_view key) {
+Result<const json*> Require(const json& object, const std::string& path, std::string_view key) {
   auto it = object.find(key);
   if (it == object.end()) return FieldError(Join(path, key), "missing");
   return &*it;
 }
 
-Result<int64_t> GetInteger(const Json& j, std::string_view path, int64_t lo, int64_t hi) {
-  if (!j.is_number_integer()) {
-    return FieldError(path, "must be an integer, got " +
-                                (j.is_number() ? Printable(j.dump(), 40) : TypeOf(j)));
-  }
-  if (j.is_number_unsigned() && j.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX)) {
-    return FieldError(path, "is " + j.dump() + ", must be in [" + std::to_string(lo) + ", " +
-                                std::to_string(hi) + "]");
-  }
-  const int64_t v = j.get<int64_t>();
-  if (v < lo || v > hi) {
-    return FieldError(path, "is " + std::to_string(v) + ", must be in [" + std::to_string(lo) +
-                                ", " + std::to_string(hi) + "]");
-  }
-  return v;
-}
-
-Result<double> GetNumber(const Json& j, std::string_view path, double lo, double hi) {
+Result<double> GetNumber(const json& j, const std::string& path) {
   if (!j.is_number()) return FieldError(path, "must be a number, got " + TypeOf(j));
   const double v = j.get<double>();
   if (!std::isfinite(v)) return FieldError(path, "must be finite");
+  return v;
+}
+
+Result<double> GetNumberIn(const json& j, const std::string& path, double lo, double hi) {
+  OCTO_ASSIGN_OR_RETURN(double v, GetNumber(j, path));
   if (v < lo || v > hi) {
-    return FieldError(path, "is " + FormatNumber(v) + ", must be in [" + FormatNumber(lo) + ", " +
-                                FormatNumber(hi) + "]");
+    return FieldError(path, "is " + FormatDouble(v) + ", must be in [" + FormatDouble(lo) + ", " +
+                                FormatDouble(hi) + "]");
   }
   return v;
 }
 
-Result<bool> GetBool(const Json& j, std::string_view path) {
+Result<int64_t> GetInteger(const json& j, const std::string& path, int64_t lo, int64_t hi) {
+  if (!j.is_number_integer()) {
+    return FieldError(path, "must be an integer, got " +
+                                (j.is_number_float() ? Printable(j.dump(), 40) : TypeOf(j)));
+  }
+  if (j.is_number_unsigned() && j.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX)) {
+    return FieldError(path, "is " + Printable(j.dump(), 40) + ", must be in " +
+                                std::to_string(lo) + ".." + std::to_string(hi));
+  }
+  const int64_t v = j.get<int64_t>();
+  if (v < lo || v > hi) {
+    return FieldError(path, "is " + std::to_string(v) + ", must be in " + std::to_string(lo) +
+                                ".." + std::to_string(hi));
+  }
+  return v;
+}
+
+Result<bool> GetBool(const json& j, const std::string& path) {
   if (!j.is_boolean()) return FieldError(path, "must be true or false, got " + TypeOf(j));
   return j.get<bool>();
 }
 
-Result<std::string> GetString(const Json& j, std::string_view path, size_t max_bytes,
+Result<std::string> GetString(const json& j, const std::string& path) {
+  if (!j.is_string()) return FieldError(path, "must be a string, got " + TypeOf(j));
+  return j.get<std::string>();
+}
+
+Result<std::string> GetString(const json& j, const std::string& path, size_t max_bytes,
                               bool single_line) {
   if (!j.is_string()) return FieldError(path, "must be a string, got " + TypeOf(j));
   const std::string& s = j.get_ref<const std::string&>();
@@ -176,15 +183,21 @@ Result<std::string> GetString(const Json& j, std::string_view path, size_t max_b
   return s;
 }
 
-Result<std::array<double, 3>> GetNumber3(const Json& j, std::string_view path, double lo,
-                                         double hi) {
-  if (!j.is_array()) return FieldError(path, "must be an array of 3 numbers, got " + TypeOf(j));
-  if (j.size() != 3) {
-    return FieldError(path, "must have 3 elements, has " + std::to_string(j.size()));
+Status CheckArray(const json& j, const std::string& path, size_t length) {
+  if (!j.is_array()) return FieldError(path, "must be an array, got " + TypeOf(j));
+  if (j.size() != length) {
+    return FieldError(
+        path, "must have " + std::to_string(length) + " elements, has " + std::to_string(j.size()));
   }
-  std::array<double, 3> out{};
-  for (size_t i = 0; i < 3; ++i) {
-    OCTO_ASSIGN_OR_RETURN(out[i], GetNumber(j[i], Index(path, i), lo, hi));
+  return Status::Ok();
+}
+
+Result<std::vector<double>> GetNumbers(const json& j, const std::string& path, size_t n, double lo,
+                                       double hi) {
+  OCTO_RETURN_IF_ERROR(CheckArray(j, path, n));
+  std::vector<double> out(n);
+  for (size_t i = 0; i < n; ++i) {
+    OCTO_ASSIGN_OR_RETURN(out[i], GetNumberIn(j[i], Index(path, i), lo, hi));
   }
   return out;
 }
@@ -198,8 +211,8 @@ std::string OneLine(std::string_view text, size_t max_bytes) {
   return line;
 }
 
-std::string Quote(std::string_view text) { return Dump(Json(std::string(text))); }
+std::string Quote(std::string_view text) { return Dump(json(std::string(text))); }
 
-std::string Dump(const Json& j) { return j.dump(-1, ' ', false, Json::error_handler_t::replace); }
+std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
-}  // namespace octoscope::protocol::json_fields
+}  // namespace octoscope::protocol

@@ -1,81 +1,83 @@
-// JSON fields: the strict reading of untrusted JSON that the protocol's message and API parsers
-// share (internal to server/protocol; the only other code that includes nlohmann/json is the
-// rest of this folder). Parsing is bounded before a tree is built: size, nesting depth, string
-// and key lengths; duplicate keys are refused (two parsers must never disagree on a message).
-// Field readers return kInvalidArgument errors of the form "<field path>: <problem>", the path
-// written the way a client would ("state.camera.position[1]"); untrusted text in messages is
-// shortened and escaped (Printable).
+// JsonFields: the strict readers every JSON document of protocol/ is parsed with (WebSocket
+// messages, REST bodies, render parameters, cameras, dataset requests, sidecars).
+// PROTOCOL-INTERNAL: only protocol/ includes it (the only layer that touches JSON). Parsing is
+// bounded before a tree is built: size, nesting depth, string and key lengths; duplicate keys are
+// refused (two readers must never disagree on what a document says). Errors are kInvalidArgument
+// and name the field by its path, written the way a client would ("channels[2].window: must be >
+// 0"); untrusted text quoted in messages is shortened and escaped. Nothing throws out of these
+// functions.
 //
 // Thread safety: pure functions.
 #ifndef OCTOSCOPE_PROTOCOL_JSON_FIELDS_H_
 #define OCTOSCOPE_PROTOCOL_JSON_FIELDS_H_
 
-#include <array>
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <initializer_list>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "util/result.h"
+#include "util/status.h"
 
-namespace octoscope::protocol::json_fields {
-
-using Json = nlohmann::json;
-
-struct ParseLimits {
-  size_t max_bytes = 0;         // Longer text is refused unparsed.
-  int max_depth = 0;            // Objects/arrays nested deeper than this are refused.
-  size_t max_string_bytes = 0;  // Longest string value or key.
-};
-
-// Parses `text` as one JSON object within `limits`. `what` names the document in errors
-// ("message", "request body").
-Result<Json> ParseObject(std::string_view text, std::string_view what, const ParseLimits& limits);
-
-// The JSON type name ("string", "number", ...) for messages.
-std::string TypeOf(const Json& j);
-
-// "path.key" (or "key" at the top level) and "path[i]".
-std::string Join(std::string_view path, std::string_view key);
-std::string Index(std::string_view path, size_t i);
+namespace octoscope::protocol {
 
 // kInvalidArgument "<path>: <problem>".
-Status FieldError(std::string_view path, std::string_view problem);
+Status FieldError(const std::string& path, std::string_view problem);
+// The JSON type's name ("object", "number", ...), for messages.
+std::string TypeOf(const nlohmann::json& j);
+// Shortest round-tripping text of a number, for messages.
+std::string FormatDouble(double v);
+// "path.key" ("key" for the root) and "path[i]".
+std::string Join(const std::string& path, std::string_view key);
+std::string Index(const std::string& path, size_t i);
 
-// Refuses keys outside `known`, naming the first unknown one (typos are never ignored).
-Status CheckKeys(const Json& object, std::string_view path,
+// Parses the whole text as one JSON object ("what" names the document in errors). Refused while
+// parsing, before anything is built from them: texts over max_bytes, containers nested more than
+// max_depth levels (the outer object is level 1; deep trees cost recursion later), strings or
+// keys over max_string_bytes, and a key repeated within one object. Anything but an object is an
+// error too.
+Result<nlohmann::json> ParseJsonObject(
+    std::string_view text, std::string_view what, uint64_t max_bytes, int max_depth,
+    size_t max_string_bytes = std::numeric_limits<size_t>::max());
+
+// Refuses keys outside `known` (typos must not be silently ignored), naming the first unknown one.
+Status CheckKeys(const nlohmann::json& object, const std::string& path,
                  std::initializer_list<std::string_view> known);
-
 // Refuses a non-object.
-Status CheckObject(const Json& j, std::string_view path);
+Status CheckObject(const nlohmann::json& j, const std::string& path);
+// The member `key` of `object`, or an error naming the missing field (path.key).
+Result<const nlohmann::json*> Require(const nlohmann::json& object, const std::string& path,
+                                      std::string_view key);
 
-// The member `key` of `object`, or an error naming the missing field.
-Result<const Json*> Require(const Json& object, std::string_view path, std::string_view key);
-
-// An integer in [lo, hi]; JSON numbers with a fraction or exponent form (3.0, 1e3) are refused.
-Result<int64_t> GetInteger(const Json& j, std::string_view path, int64_t lo, int64_t hi);
-// A finite number in [lo, hi].
-Result<double> GetNumber(const Json& j, std::string_view path, double lo, double hi);
-Result<bool> GetBool(const Json& j, std::string_view path);
+Result<double> GetNumber(const nlohmann::json& j, const std::string& path);  // Finite.
+Result<double> GetNumberIn(const nlohmann::json& j, const std::string& path, double lo, double hi);
+// An integer in [lo, hi] (3.0 and 1e3 are refused: counts are integers).
+Result<int64_t> GetInteger(const nlohmann::json& j, const std::string& path, int64_t lo,
+                           int64_t hi);
+Result<bool> GetBool(const nlohmann::json& j, const std::string& path);
+Result<std::string> GetString(const nlohmann::json& j, const std::string& path);
 // A string of at most `max_bytes` bytes (valid UTF-8: the parser checks); with `single_line`,
 // control characters are refused too.
-Result<std::string> GetString(const Json& j, std::string_view path, size_t max_bytes,
+Result<std::string> GetString(const nlohmann::json& j, const std::string& path, size_t max_bytes,
                               bool single_line);
-// Exactly three finite numbers, each in [lo, hi].
-Result<std::array<double, 3>> GetNumber3(const Json& j, std::string_view path, double lo,
-                                         double hi);
+// An array of exactly `length` elements.
+Status CheckArray(const nlohmann::json& j, const std::string& path, size_t length);
+// `n` finite numbers, each within [lo, hi].
+Result<std::vector<double>> GetNumbers(const nlohmann::json& j, const std::string& path, size_t n,
+                                       double lo = -HUGE_VAL, double hi = HUGE_VAL);
 
 // `text` cut to `max_bytes` with control characters replaced by spaces (one line for a message).
 std::string OneLine(std::string_view text, size_t max_bytes);
-
-// `text` as a JSON string literal (invalid UTF-8 replaced).
+// `text` as a JSON string literal (invalid UTF-8 replaced, never thrown).
 std::string Quote(std::string_view text);
-
 // `j` as compact text; invalid UTF-8 (never produced by the parser) is replaced, never thrown.
-std::string Dump(const Json& j);
+std::string Dump(const nlohmann::json& j);
 
-}  // namespace octoscope::protocol::json_fields
+}  // namespace octoscope::protocol
 
 #endif  // OCTOSCOPE_PROTOCOL_JSON_FIELDS_H_
