@@ -36,6 +36,7 @@
 
 #include "app/commands.h"
 #include "app/flags.h"
+#include "app/volume_options.h"
 #include "io/open_volume.h"
 #include "io/synthetic_embryo.h"
 #include "octree/octree.h"
@@ -793,7 +794,7 @@ int RunBenchRender(std::span<const std::string> args) {
   std::unique_ptr<io::VolumeSource> source;
   std::string description;
   if (!flags.positionals().empty()) {
-    auto opened = io::OpenVolume(flags.positionals()[0], {});
+    auto opened = io::OpenVolume(flags.positionals()[0], DefaultOpenOptions());
     if (!opened.ok()) return Fail(opened.status().WithContext(flags.positionals()[0]).ToString());
     source = std::move(*opened);
     description = flags.positionals()[0];

@@ -1,6 +1,7 @@
 #include "protocol/json_fields.h"
 
 #include <exception>
+#include <limits>
 #include <stdexcept>
 
 #include "util/strings.h"
@@ -34,12 +35,10 @@ std::string Index(const std::string& path, size_t i) {
   return path + "[" + std::to_string(i) + "]";
 }
 
-Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint64_t max_bytes,
-                             int max_depth, size_t max_string_bytes) {
-  if (text.size() > max_bytes) {
-    return InvalidArgumentError(std::string(what) + ": " + std::to_string(text.size()) +
-                                " bytes, larger than " + std::to_string(max_bytes));
-  }
+namespace {
+
+// Parses `text` with the limits (see ParseJsonObject); errors are kInvalidArgument "<problem>".
+Result<json> ParseBounded(std::string_view text, int max_depth, size_t max_string_bytes) {
   // The keys of each open object, to refuse duplicates ({"a":1,"a":2} would otherwise mean
   // whatever the last one says). Objects are small (every schema's is), so a list is enough.
   std::vector<std::vector<std::string>> open_objects;
@@ -82,17 +81,34 @@ Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint6
     }
     return true;
   };
-  json doc;
   try {
-    doc = json::parse(text.begin(), text.end(), check);
+    return json::parse(text.begin(), text.end(), check);
   } catch (const LimitError& e) {
-    return InvalidArgumentError(std::string(what) + ": " + e.what());
+    return InvalidArgumentError(e.what());
   } catch (const std::exception& e) {
     // e.what() names the position; it may quote the input, so it is shortened and escaped.
-    return InvalidArgumentError(std::string(what) + ": not valid JSON: " + Printable(e.what(), 200));
+    return InvalidArgumentError("not valid JSON: " + Printable(e.what(), 200));
   }
-  if (!doc.is_object()) {
-    return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
+}
+
+}  // namespace
+
+Result<json> ParseJsonLimited(std::string_view text, int max_depth) {
+  Result<json> doc = ParseBounded(text, max_depth, std::numeric_limits<size_t>::max());
+  if (!doc.ok()) return CorruptError(doc.status().message());
+  return doc;
+}
+
+Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint64_t max_bytes,
+                             int max_depth, size_t max_string_bytes) {
+  if (text.size() > max_bytes) {
+    return InvalidArgumentError(std::string(what) + ": " + std::to_string(text.size()) +
+                                " bytes, larger than " + std::to_string(max_bytes));
+  }
+  Result<json> doc = ParseBounded(text, max_depth, max_string_bytes);
+  if (!doc.ok()) return InvalidArgumentError(std::string(what) + ": " + doc.status().message());
+  if (!doc->is_object()) {
+    return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(*doc));
   }
   return doc;
 }

@@ -1,5 +1,5 @@
 // JsonFields: the strict readers every JSON document of protocol/ is parsed with (WebSocket
-// messages, REST bodies, render parameters, cameras, dataset requests, sidecars).
+// messages, REST bodies, render parameters, cameras, dataset requests, sidecars, Zarr metadata).
 // PROTOCOL-INTERNAL: only protocol/ includes it (the only layer that touches JSON). Parsing is
 // bounded before a tree is built: size, nesting depth, string and key lengths; duplicate keys are
 // refused (two readers must never disagree on what a document says). Errors are kInvalidArgument
@@ -44,6 +44,11 @@ std::string Index(const std::string& path, size_t i);
 Result<nlohmann::json> ParseJsonObject(
     std::string_view text, std::string_view what, uint64_t max_bytes, int max_depth,
     size_t max_string_bytes = std::numeric_limits<size_t>::max());
+
+// The JSON value of `text` (any type), or kCorrupt "not valid JSON: <the parser's message, naming
+// the position>" / "nested too deeply ..." / "duplicate key ...": for files (Zarr metadata) rather
+// than requests. Containers nested more than `max_depth` levels and repeated keys are refused.
+Result<nlohmann::json> ParseJsonLimited(std::string_view text, int max_depth);
 
 // Refuses keys outside `known` (typos must not be silently ignored), naming the first unknown one.
 Status CheckKeys(const nlohmann::json& object, const std::string& path,
