@@ -49,12 +49,13 @@ inline Status CheckMessage(const protocol::ClientMessage& message) {
     return Expect(a->frame >= 1 && a->frame <= kMaxSafeInteger, "ack range");
   }
   if (const auto* q = std::get_if<QualityMessage>(&message)) {
-    return Expect((!q->jpeg_interactive || (*q->jpeg_interactive >= kMinJpegInteractive &&
-                                            *q->jpeg_interactive <= kMaxJpegInteractive)) &&
-                      (!q->jpeg_final ||
-                       (*q->jpeg_final >= kMinJpegFinal && *q->jpeg_final <= kMaxJpegFinal)) &&
-                      (!q->lod_bias || (*q->lod_bias >= kMinLodBias && *q->lod_bias <= kMaxLodBias)),
-                  "quality ranges");
+    return Expect(
+        (!q->jpeg_interactive || (*q->jpeg_interactive >= kMinJpegInteractive &&
+                                  *q->jpeg_interactive <= kMaxJpegInteractive)) &&
+            (!q->jpeg_final ||
+             (*q->jpeg_final >= kMinJpegFinal && *q->jpeg_final <= kMaxJpegFinal)) &&
+            (!q->lod_bias || (*q->lod_bias >= kMinLodBias && *q->lod_bias <= kMaxLodBias)),
+        "quality ranges");
   }
   if (const auto* s = std::get_if<SlicesMessage>(&message)) {
     bool finite = true;
@@ -99,7 +100,8 @@ inline Status WsMessageInput(std::span<const uint8_t> data) {
                 query->channel >= 0 && query->channel < kMaxStreamChannels,
             "slab query ranges"));
       }
-      return state.ok() ? query.status() : state.status();
+      if (state.ok() || query.ok()) return Status::Ok();
+      return state.status();
     }
     default: {
       Result<FrameHeader> header = DecodeFrameHeader(rest);

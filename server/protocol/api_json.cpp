@@ -73,9 +73,9 @@ Result<SlabQuery> ParseSlabQuery(std::string_view query) {
   if (!seen_depth) return FieldError("query parameter \"depth\"", "missing");
   if (!seen_channel) return FieldError("query parameter \"channel\"", "missing");
   if (q.z + q.depth > kMaxStreamAxis) {
-    return FieldError("query parameter \"depth\"",
-                      "z + depth = " + std::to_string(q.z + q.depth) + " exceeds " +
-                          std::to_string(kMaxStreamAxis) + " planes");
+    return FieldError("query parameter \"depth\"", "z + depth = " + std::to_string(q.z + q.depth) +
+                                                       " exceeds " +
+                                                       std::to_string(kMaxStreamAxis) + " planes");
   }
   return q;
 }

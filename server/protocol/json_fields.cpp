@@ -121,8 +121,8 @@ Status CheckKeys(const json& object, const std::string& path,
     if (!found) {
       std::string list;
       for (std::string_view k : known) list += (list.empty() ? "" : ", ") + std::string(k);
-      return FieldError(Join(path, Printable(item.key(), 60)),
-                        "unknown field (known: " + list + ")");
+      return InvalidArgumentError("unknown key \"" + Printable(item.key(), 60) + "\"" +
+                                  (path.empty() ? "" : " in " + path) + " (known: " + list + ")");
     }
   }
   return Status::Ok();
@@ -161,8 +161,8 @@ Result<int64_t> GetInteger(const json& j, const std::string& path, int64_t lo, i
                                 (j.is_number_float() ? Printable(j.dump(), 40) : TypeOf(j)));
   }
   if (j.is_number_unsigned() && j.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX)) {
-    return FieldError(path, "is " + Printable(j.dump(), 40) + ", must be in " +
-                                std::to_string(lo) + ".." + std::to_string(hi));
+    return FieldError(path, "is " + Printable(j.dump(), 40) + ", must be in " + std::to_string(lo) +
+                                ".." + std::to_string(hi));
   }
   const int64_t v = j.get<int64_t>();
   if (v < lo || v > hi) {

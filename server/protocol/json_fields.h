@@ -50,7 +50,8 @@ Result<nlohmann::json> ParseJsonObject(
 // than requests. Containers nested more than `max_depth` levels and repeated keys are refused.
 Result<nlohmann::json> ParseJsonLimited(std::string_view text, int max_depth);
 
-// Refuses keys outside `known` (typos must not be silently ignored), naming the first unknown one.
+// Refuses keys outside `known` (typos must not be silently ignored): `unknown key "K" in PATH
+// (known: ...)` for the first unknown key K.
 Status CheckKeys(const nlohmann::json& object, const std::string& path,
                  std::initializer_list<std::string_view> known);
 // Refuses a non-object.

@@ -14,7 +14,6 @@
 namespace octoscope::protocol {
 namespace {
 
-
 using Json = nlohmann::json;
 
 Result<Json> ParseMessageText(std::string_view text, std::string_view what) {
@@ -29,9 +28,9 @@ Result<std::array<double, 3>> GetNumber3(const Json& j, const std::string& path,
   return std::array<double, 3>{v[0], v[1], v[2]};
 }
 
-constexpr std::string_view kTypeNames[] = {"hello",    "open",        "camera",      "params",
-                                           "slices",   "viewport",    "interaction", "quality",
-                                           "ack",      "screenshot",  "ping"};
+constexpr std::string_view kTypeNames[] = {"hello",  "open",       "camera",      "params",
+                                           "slices", "viewport",   "interaction", "quality",
+                                           "ack",    "screenshot", "ping"};
 
 // Rewrites an error of a render_json parser ("position: must be ...", "camera: missing ...",
 // "unknown key ...") so that it names the field from the message's root ("camera.position: ...").
@@ -54,8 +53,7 @@ Result<ViewId> GetView(const Json& j, const std::string& path) {
 
 Result<render::Camera> CameraFromJson(const Json& j, const std::string& path) {
   OCTO_RETURN_IF_ERROR(CheckObject(j, path));
-  Result<render::Camera> camera =
-      ParseCameraJson(Dump(j), render::Projection::kOrthographic, 1, 1);
+  Result<render::Camera> camera = ParseCameraJson(Dump(j), render::Projection::kOrthographic, 1, 1);
   if (!camera.ok()) return Reprefix(camera.status(), "camera: ", path);
   return camera;
 }
@@ -96,9 +94,9 @@ Result<StateUpdate> StateFromJson(const Json& j, const std::string& path) {
     OCTO_RETURN_IF_ERROR(CheckObject(*it, slices));
     OCTO_RETURN_IF_ERROR(CheckKeys(*it, slices, {"position_um"}));
     if (auto p = it->find("position_um"); p != it->end()) {
-      OCTO_ASSIGN_OR_RETURN(state.slice_position_um,
-                            GetNumber3(*p, Join(slices, "position_um"),
-                                                    -kMaxCoordinateUm, kMaxCoordinateUm));
+      OCTO_ASSIGN_OR_RETURN(
+          state.slice_position_um,
+          GetNumber3(*p, Join(slices, "position_um"), -kMaxCoordinateUm, kMaxCoordinateUm));
     }
   }
   if (auto it = j.find("layout"); it != j.end()) {
@@ -118,8 +116,7 @@ Result<StateUpdate> StateFromJson(const Json& j, const std::string& path) {
 Result<ClientMessage> ParseHello(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "hello", {"type", "client", "protocol"}));
   OCTO_ASSIGN_OR_RETURN(const Json* protocol, Require(doc, "hello", "protocol"));
-  OCTO_ASSIGN_OR_RETURN(int64_t version,
-                        GetInteger(*protocol, "hello.protocol", 0, INT32_MAX));
+  OCTO_ASSIGN_OR_RETURN(int64_t version, GetInteger(*protocol, "hello.protocol", 0, INT32_MAX));
   if (version != kProtocolVersion) {
     return FieldError("hello.protocol", "is " + std::to_string(version) +
                                             ", this server speaks protocol " +
@@ -127,8 +124,7 @@ Result<ClientMessage> ParseHello(const Json& doc) {
   }
   HelloMessage hello;
   if (auto it = doc.find("client"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(hello.client,
-                          GetString(*it, "hello.client", kMaxClientNameBytes, true));
+    OCTO_ASSIGN_OR_RETURN(hello.client, GetString(*it, "hello.client", kMaxClientNameBytes, true));
   }
   return ClientMessage(std::move(hello));
 }
@@ -139,11 +135,10 @@ Result<ClientMessage> ParseOpen(const Json& doc) {
   OpenMessage open;
   OCTO_ASSIGN_OR_RETURN(open.dataset,
                         GetString(*dataset, "open.dataset", kMaxDatasetIdBytes, true));
-  const bool valid_id = !open.dataset.empty() &&
-                        std::all_of(open.dataset.begin(), open.dataset.end(), [](char c) {
-                          return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
-                                 c == '-';
-                        });
+  const bool valid_id =
+      !open.dataset.empty() && std::all_of(open.dataset.begin(), open.dataset.end(), [](char c) {
+        return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+      });
   if (!valid_id) {
     return FieldError("open.dataset", "\"" + Printable(open.dataset, 40) +
                                           "\" is not a dataset id (1 to 64 of a-z 0-9 _ -)");
@@ -172,9 +167,8 @@ Result<ClientMessage> ParseSlices(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "slices", {"type", "position_um"}));
   OCTO_ASSIGN_OR_RETURN(const Json* position, Require(doc, "slices", "position_um"));
   SlicesMessage slices;
-  OCTO_ASSIGN_OR_RETURN(slices.position_um,
-                        GetNumber3(*position, "slices.position_um",
-                                                -kMaxCoordinateUm, kMaxCoordinateUm));
+  OCTO_ASSIGN_OR_RETURN(slices.position_um, GetNumber3(*position, "slices.position_um",
+                                                       -kMaxCoordinateUm, kMaxCoordinateUm));
   return ClientMessage(std::move(slices));
 }
 
@@ -184,17 +178,15 @@ Result<ClientMessage> ParseViewport(const Json& doc) {
   OCTO_ASSIGN_OR_RETURN(const Json* view, Require(doc, "viewport", "view"));
   OCTO_ASSIGN_OR_RETURN(viewport.view, GetView(*view, "viewport.view"));
   OCTO_ASSIGN_OR_RETURN(const Json* width, Require(doc, "viewport", "width"));
-  OCTO_ASSIGN_OR_RETURN(int64_t w,
-                        GetInteger(*width, "viewport.width", 0, kMaxViewportCssPixels));
+  OCTO_ASSIGN_OR_RETURN(int64_t w, GetInteger(*width, "viewport.width", 0, kMaxViewportCssPixels));
   OCTO_ASSIGN_OR_RETURN(const Json* height, Require(doc, "viewport", "height"));
-  OCTO_ASSIGN_OR_RETURN(
-      int64_t h, GetInteger(*height, "viewport.height", 0, kMaxViewportCssPixels));
+  OCTO_ASSIGN_OR_RETURN(int64_t h,
+                        GetInteger(*height, "viewport.height", 0, kMaxViewportCssPixels));
   viewport.width = static_cast<int>(w);
   viewport.height = static_cast<int>(h);
   if (auto it = doc.find("dpr"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(viewport.dpr, GetNumberIn(*it, "viewport.dpr",
-                                                               kMinDevicePixelRatio,
-                                                               kMaxDevicePixelRatio));
+    OCTO_ASSIGN_OR_RETURN(
+        viewport.dpr, GetNumberIn(*it, "viewport.dpr", kMinDevicePixelRatio, kMaxDevicePixelRatio));
   }
   return ClientMessage(std::move(viewport));
 }
@@ -213,22 +205,20 @@ Result<ClientMessage> ParseQuality(const Json& doc) {
   QualityMessage quality;
   if (auto it = doc.find("jpeg_interactive"); it != doc.end()) {
     OCTO_ASSIGN_OR_RETURN(int64_t q, GetInteger(*it, "quality.jpeg_interactive",
-                                                             kMinJpegInteractive,
-                                                             kMaxJpegInteractive));
+                                                kMinJpegInteractive, kMaxJpegInteractive));
     quality.jpeg_interactive = static_cast<int>(q);
   }
   if (auto it = doc.find("jpeg_final"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(int64_t q, GetInteger(*it, "quality.jpeg_final",
-                                                             kMinJpegFinal, kMaxJpegFinal));
+    OCTO_ASSIGN_OR_RETURN(int64_t q,
+                          GetInteger(*it, "quality.jpeg_final", kMinJpegFinal, kMaxJpegFinal));
     quality.jpeg_final = static_cast<int>(q);
   }
   if (auto it = doc.find("lossless_final"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(quality.lossless_final,
-                          GetBool(*it, "quality.lossless_final"));
+    OCTO_ASSIGN_OR_RETURN(quality.lossless_final, GetBool(*it, "quality.lossless_final"));
   }
   if (auto it = doc.find("lod_bias"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(quality.lod_bias, GetNumberIn(*it, "quality.lod_bias",
-                                                                   kMinLodBias, kMaxLodBias));
+    OCTO_ASSIGN_OR_RETURN(quality.lod_bias,
+                          GetNumberIn(*it, "quality.lod_bias", kMinLodBias, kMaxLodBias));
   }
   return ClientMessage(std::move(quality));
 }
@@ -236,8 +226,8 @@ Result<ClientMessage> ParseQuality(const Json& doc) {
 Result<ClientMessage> ParseAck(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "ack", {"type", "frame"}));
   OCTO_ASSIGN_OR_RETURN(const Json* frame, Require(doc, "ack", "frame"));
-  OCTO_ASSIGN_OR_RETURN(int64_t id, GetInteger(*frame, "ack.frame", 1,
-                                                            static_cast<int64_t>(kMaxSafeInteger)));
+  OCTO_ASSIGN_OR_RETURN(int64_t id,
+                        GetInteger(*frame, "ack.frame", 1, static_cast<int64_t>(kMaxSafeInteger)));
   return ClientMessage(AckMessage{static_cast<uint64_t>(id)});
 }
 
@@ -266,7 +256,6 @@ Result<ClientMessage> ParsePing(const Json& doc) {
 
 std::string Number(double v) { return Json(v).dump(); }
 
-
 }  // namespace
 
 std::string_view MessageTypeName(const ClientMessage& message) {
@@ -280,10 +269,9 @@ Result<ClientMessage> ParseClientMessage(std::string_view text, std::string* typ
   OCTO_ASSIGN_OR_RETURN(std::string name,
                         GetString(*type_field, "type", kMaxClientStringBytes, false));
   using Parser = Result<ClientMessage> (*)(const Json&);
-  static constexpr Parser kParsers[] = {ParseHello,       ParseOpen,    ParseCamera, ParseParams,
-                                        ParseSlices,      ParseViewport, ParseInteraction,
-                                        ParseQuality,     ParseAck,     ParseScreenshot,
-                                        ParsePing};
+  static constexpr Parser kParsers[] = {
+      ParseHello,       ParseOpen,    ParseCamera, ParseParams,     ParseSlices, ParseViewport,
+      ParseInteraction, ParseQuality, ParseAck,    ParseScreenshot, ParsePing};
   static_assert(std::size(kParsers) == std::size(kTypeNames));
   static_assert(std::size(kTypeNames) == std::variant_size_v<ClientMessage>);
   for (size_t i = 0; i < std::size(kTypeNames); ++i) {
@@ -293,8 +281,8 @@ Result<ClientMessage> ParseClientMessage(std::string_view text, std::string* typ
   }
   std::string known;
   for (std::string_view k : kTypeNames) known += (known.empty() ? "" : ", ") + std::string(k);
-  return FieldError("type", "unknown message type \"" + Printable(name, 40) + "\" (known: " +
-                                known + ")");
+  return FieldError("type",
+                    "unknown message type \"" + Printable(name, 40) + "\" (known: " + known + ")");
 }
 
 Result<StateUpdate> ParseStateDocument(std::string_view text, std::string_view path) {
@@ -360,8 +348,7 @@ std::string DatasetEvent(std::string_view dataset_json) {
 }
 
 std::string ErrorEvent(std::string_view message, std::string_view request, bool fatal) {
-  std::string out =
-      "{\"type\":\"error\",\"message\":" + Quote(OneLine(message, 1000));
+  std::string out = "{\"type\":\"error\",\"message\":" + Quote(OneLine(message, 1000));
   if (!request.empty()) out += ",\"request\":" + Quote(request);
   out += std::string(",\"fatal\":") + (fatal ? "true" : "false") + "}";
   return out;
