@@ -602,6 +602,7 @@ void HttpSession::Write(std::shared_ptr<Message> message, bool close) {
 void HttpSession::OnWrite(bool close, int status, uint64_t body_bytes, beast::error_code ec) {
   response_.reset();
   ++core_->requests;
+  if (status >= 100 && status <= 599) ++core_->responses_by_status[status - 100];
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started_)
           .count();

@@ -250,4 +250,14 @@ size_t Server::open_websockets() const { return impl_->core->websockets; }
 
 uint64_t Server::requests_served() const { return impl_->core->requests; }
 
+std::vector<std::pair<int, uint64_t>> Server::responses_by_status() const {
+  std::vector<std::pair<int, uint64_t>> out;
+  const auto& counts = impl_->core->responses_by_status;
+  for (size_t i = 0; i < counts.size(); ++i) {
+    const uint64_t n = counts[i].load();
+    if (n > 0) out.emplace_back(static_cast<int>(i) + 100, n);
+  }
+  return out;
+}
+
 }  // namespace octoscope::net

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <string>
 #include <thread>
@@ -310,6 +311,12 @@ TEST_F(HttpServerTest, ApiAndMetricsRequireTheToken) {
     EXPECT_EQ(line.find(kToken), std::string::npos) << line;
   }
   EXPECT_TRUE(logger_.Contains("GET /api/echo 200"));
+  // Responses are counted by status for the metrics.
+  std::map<int, uint64_t> by_status;
+  for (const auto& [code, count] : server_->responses_by_status()) by_status[code] = count;
+  EXPECT_GE(by_status[401], 3u);
+  EXPECT_GE(by_status[200], 4u);
+  EXPECT_EQ(by_status.count(500), 0u);
 }
 
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {
