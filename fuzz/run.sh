@@ -3,13 +3,15 @@
 # Usage: bash fuzz/run.sh [SECONDS=120] [JOBS=1] [HARNESS=tiff_ome_fuzzer]
 #   HARNESS: tiff_ome_fuzzer (TIFF + OME-XML), zarr_metadata_fuzzer, chunk_codec_fuzzer,
 #   zarr_store_fuzzer (OME-Zarr; input formats in fuzz/zarr_fuzz_inputs.h), dataset_json_fuzzer
-#   (stream requests and watch sidecars; seeds in fuzz/seeds-json).
+#   (stream requests, watch sidecars), ws_message_fuzzer (WebSocket client messages).
 # Builds with clang (+ASan/UBSan, libFuzzer coverage) into build-fuzz/. The TIFF harness seeds
 # from fuzz/seeds and fuzz/regressions (plus small files of ../shared/testdata when present), the
 # Zarr harnesses from fuzz/zarr/seeds/NAME and fuzz/zarr/regressions/NAME (NAME = the harness
-# without "_fuzzer"). New corpus entries go to fuzz/corpus-run/HARNESS/, crashes to
-# fuzz/crashes/. Turn every crash into a regression: copy it into the harness's regressions
-# folder (tests/io/bad_input_test.cpp and tests/io/zarr_fuzz_replay_test.cpp replay them).
+# without "_fuzzer"), dataset_json_fuzzer from fuzz/seeds-json, ws_message_fuzzer from
+# fuzz/ws/seeds and fuzz/ws/regressions. New corpus entries go to fuzz/corpus-run/HARNESS/,
+# crashes to fuzz/crashes/. Turn every crash into a regression: copy it into the harness's
+# regressions folder (tests/io/bad_input_test.cpp, tests/io/zarr_fuzz_replay_test.cpp and
+# tests/protocol/ws_messages_test.cpp replay them).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 seconds="${1:-120}"
@@ -25,15 +27,16 @@ cmake --build "$build" --target "$harness" -j "$(nproc)"
 
 corpus="$root/fuzz/corpus-run/$harness"
 mkdir -p "$corpus" "$root/fuzz/crashes"
-if [ "$harness" = tiff_ome_fuzzer ]; then
-  seeds=("$root/fuzz/seeds" "$root/fuzz/regressions")
-elif [ "$harness" = dataset_json_fuzzer ]; then
-  seeds=("$root/fuzz/seeds-json")
-else
-  name="${harness%_fuzzer}"
-  mkdir -p "$root/fuzz/zarr/regressions/$name"
-  seeds=("$root/fuzz/zarr/seeds/$name" "$root/fuzz/zarr/regressions/$name")
-fi
+case "$harness" in
+  tiff_ome_fuzzer) seeds=("$root/fuzz/seeds" "$root/fuzz/regressions") ;;
+  dataset_json_fuzzer) seeds=("$root/fuzz/seeds-json") ;;
+  ws_message_fuzzer) seeds=("$root/fuzz/ws/seeds" "$root/fuzz/ws/regressions") ;;
+  *)
+    name="${harness%_fuzzer}"
+    mkdir -p "$root/fuzz/zarr/regressions/$name"
+    seeds=("$root/fuzz/zarr/seeds/$name" "$root/fuzz/zarr/regressions/$name")
+    ;;
+esac
 testdata="$root/../shared/testdata"
 if [ "$harness" = tiff_ome_fuzzer ] && [ -d "$testdata" ]; then
   # Small real files make good seeds (big ones only slow each run down).

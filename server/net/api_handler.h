@@ -39,8 +39,8 @@ struct HttpRequest {
   std::string method;  // "GET", "PUT", ... as sent.
   std::string path;    // Percent-decoded, without the query ("/api/datasets/ab12/slabs").
   std::string query;   // Raw (still encoded), without '?' and without the "token" parameter.
-  std::vector<HttpHeader> headers;  // As received, without Authorization.
-  std::string body;                 // The whole body (BodyMode::kBuffered); else empty.
+  std::vector<HttpHeader> headers;          // As received, without Authorization.
+  std::string body;                         // The whole body (BodyMode::kBuffered); else empty.
   std::shared_ptr<BodyReader> body_reader;  // Set for BodyMode::kStreamed, else null.
   std::string remote;                       // "127.0.0.1:54321".
 

@@ -137,10 +137,9 @@ void HttpSession::DoReadHeader() {
   // boost::none: Beast 1.74 compares a Content-Length against it and always fails.)
   header_parser_->body_limit(std::numeric_limits<uint64_t>::max());
   stream_.expires_after(core_->options.read_timeout);
-  http::async_read_header(stream_, buffer_, *header_parser_,
-                          [self = shared_from_this()](beast::error_code ec, size_t) {
-                            self->OnReadHeader(ec);
-                          });
+  http::async_read_header(
+      stream_, buffer_, *header_parser_,
+      [self = shared_from_this()](beast::error_code ec, size_t) { self->OnReadHeader(ec); });
 }
 
 void HttpSession::OnReadHeader(beast::error_code ec) {
@@ -168,8 +167,8 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
   keep_alive_ = request.keep_alive();
   body_complete_ = header_parser_->is_done();
   expect_continue_ =
-      !body_complete_ && EqualsIgnoreCase(TrimWhitespace(Std(request[http::field::expect])),
-                                          "100-continue");
+      !body_complete_ &&
+      EqualsIgnoreCase(TrimWhitespace(Std(request[http::field::expect])), "100-continue");
   const std::string_view target = Std(request.target());
   const size_t question = target.find('?');
   const std::string_view raw_path = target.substr(0, question);
@@ -189,7 +188,8 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
 
 bool HttpSession::Authorized() const {
   const auto& request = header_parser_->get();
-  return RequestCarriesToken(core_->options.token, Std(request[http::field::authorization]), query_);
+  return RequestCarriesToken(core_->options.token, Std(request[http::field::authorization]),
+                             query_);
 }
 
 void HttpSession::Route() {
@@ -214,8 +214,8 @@ void HttpSession::Route() {
   }
   const bool api = path_ == "/api" || path_.starts_with("/api/") || path_ == "/metrics";
   if (api) {
-    const bool health = path_ == "/api/health" &&
-                        (request.method() == http::verb::get || request.method() == http::verb::head);
+    const bool health = path_ == "/api/health" && (request.method() == http::verb::get ||
+                                                   request.method() == http::verb::head);
     if (!health && !Authorized()) {
       SendError(401, "missing or wrong token");
       return;
@@ -369,12 +369,12 @@ void HttpSession::CallHandler() {
   keep_alive_while_handling_ = shared_from_this();
   HttpRequest request = std::move(*pending_);
   pending_.reset();
-  HttpResponder responder([weak = weak_from_this(), core = core_,
-                           id = request_id_](HttpResponse response) {
-    core->Post(weak, [id, response = std::move(response)](HttpSession& s) mutable {
-      s.DeliverResponse(id, std::move(response));
-    });
-  });
+  HttpResponder responder(
+      [weak = weak_from_this(), core = core_, id = request_id_](HttpResponse response) {
+        core->Post(weak, [id, response = std::move(response)](HttpSession& s) mutable {
+          s.DeliverResponse(id, std::move(response));
+        });
+      });
   bool threw = true;
   std::string what;
   try {
@@ -386,8 +386,8 @@ void HttpSession::CallHandler() {
     what = "a non-standard exception";
   }
   if (threw) {
-    core_->Log(LogLevel::kError, "ApiHandler::Handle threw on " + method_ + " " + path_ + ": " +
-                                     what);
+    core_->Log(LogLevel::kError,
+               "ApiHandler::Handle threw on " + method_ + " " + path_ + ": " + what);
     responder.Respond(HttpResponse::Error(500, "internal error: " + what));
   }
 }
@@ -409,15 +409,13 @@ void HttpSession::DeliverResponse(uint64_t request_id, HttpResponse response) {
 
 void HttpSession::ReadBodyPiece(uint64_t request_id, BodyReader::ReadCallback done) {
   if (request_id != request_id_ || state_ != State::kHandling || !upload_parser_) {
-    if (request_id == request_id_ && state_ == State::kHandling && body_complete_ &&
-        !piece_done_) {
+    if (request_id == request_id_ && state_ == State::kHandling && body_complete_ && !piece_done_) {
       // A request without a body: the end at once.
       core_->CallUser("BodyReader callback", [&] { done(std::span<const uint8_t>()); });
       return;
     }
-    core_->CallUser("BodyReader callback", [&] {
-      done(UnavailableError("the request's body is no longer being read"));
-    });
+    core_->CallUser("BodyReader callback",
+                    [&] { done(UnavailableError("the request's body is no longer being read")); });
     return;
   }
   if (piece_done_) {
@@ -447,10 +445,9 @@ void HttpSession::DoReadPiece() {
   body.size = piece_.size();
   body.more = true;
   stream_.expires_after(core_->options.read_timeout);
-  http::async_read_some(stream_, buffer_, *upload_parser_,
-                        [self = shared_from_this()](beast::error_code ec, size_t) {
-                          self->OnReadPiece(ec);
-                        });
+  http::async_read_some(
+      stream_, buffer_, *upload_parser_,
+      [self = shared_from_this()](beast::error_code ec, size_t) { self->OnReadPiece(ec); });
 }
 
 void HttpSession::OnReadPiece(beast::error_code ec) {
@@ -466,8 +463,8 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
       FailPiece(ResourceExhaustedError(message));
       SendError(413, message);
     } else if (ec == beast::error::timeout) {
-      core_->Log(LogLevel::kWarning, "HTTP " + remote_ + " " + method_ + " " + path_ +
-                                         ": upload stalled, closing");
+      core_->Log(LogLevel::kWarning,
+                 "HTTP " + remote_ + " " + method_ + " " + path_ + ": upload stalled, closing");
       FailPiece(UnavailableError("the upload stalled"));
       CloseNow();
     } else if (IsHttpParseError(ec) && ec != http::error::partial_message &&
@@ -492,7 +489,7 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
   auto callback = std::move(piece_done_);
   piece_done_ = nullptr;
   core_->CallUser("BodyReader callback",
-           [&] { callback(std::span<const uint8_t>(piece_.data(), bytes)); });
+                  [&] { callback(std::span<const uint8_t>(piece_.data(), bytes)); });
 }
 
 void HttpSession::FailPiece(Status status) {
@@ -510,26 +507,25 @@ void HttpSession::ContinueThen(std::function<void()> next) {
   expect_continue_ = false;
   continue_writing_ = true;
   stream_.expires_after(core_->options.write_timeout);
-  asio::async_write(stream_, asio::buffer(kContinue.data(), kContinue.size()),
-                    [self = shared_from_this(), next = std::move(next)](beast::error_code ec,
-                                                                         size_t) {
-                      self->continue_writing_ = false;
-                      if (self->state_ == State::kClosed) return;
-                      if (ec) {
-                        self->FailPiece(UnavailableError("the client went away"));
-                        self->CloseNow();
-                        return;
-                      }
-                      if (self->deferred_response_) {
-                        self->FailPiece(
-                            UnavailableError("the request was answered before its body was read"));
-                        HttpResponse response = std::move(*self->deferred_response_);
-                        self->deferred_response_.reset();
-                        self->SendResponse(std::move(response));
-                        return;
-                      }
-                      next();
-                    });
+  asio::async_write(
+      stream_, asio::buffer(kContinue.data(), kContinue.size()),
+      [self = shared_from_this(), next = std::move(next)](beast::error_code ec, size_t) {
+        self->continue_writing_ = false;
+        if (self->state_ == State::kClosed) return;
+        if (ec) {
+          self->FailPiece(UnavailableError("the client went away"));
+          self->CloseNow();
+          return;
+        }
+        if (self->deferred_response_) {
+          self->FailPiece(UnavailableError("the request was answered before its body was read"));
+          HttpResponse response = std::move(*self->deferred_response_);
+          self->deferred_response_.reset();
+          self->SendResponse(std::move(response));
+          return;
+        }
+        next();
+      });
 }
 
 void HttpSession::UpgradeToWebSocket() {
@@ -543,8 +539,7 @@ void HttpSession::UpgradeToWebSocket() {
 }
 
 bool HttpSession::MustClose() const {
-  return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ ||
-         core_->shutting_down;
+  return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ || core_->shutting_down;
 }
 
 void HttpSession::ApplyCommonHeaders(http::fields& fields) const {
@@ -577,8 +572,8 @@ void HttpSession::SendResponse(HttpResponse r) {
   if (!r.content_type.empty()) response->set(http::field::content_type, r.content_type);
   for (const HttpHeader& h : r.headers) {
     if (!SafeHeaderValue(h.name) || !SafeHeaderValue(h.value) || h.name.empty()) {
-      core_->Log(LogLevel::kError, "dropped a response header with a line break: " +
-                                       Printable(h.name, 40));
+      core_->Log(LogLevel::kError,
+                 "dropped a response header with a line break: " + Printable(h.name, 40));
       continue;
     }
     response->set(h.name, h.value);
@@ -596,17 +591,18 @@ void HttpSession::Write(std::shared_ptr<Message> message, bool close) {
   const uint64_t body_bytes = message->payload_size().value_or(0);
   response_ = message;
   stream_.expires_after(core_->options.write_timeout);
-  http::async_write(stream_, *message,
-                    [self = shared_from_this(), close, status, body_bytes](beast::error_code ec,
-                                                                          size_t) {
-                      self->OnWrite(close, status, body_bytes, ec);
-                    });
+  http::async_write(
+      stream_, *message,
+      [self = shared_from_this(), close, status, body_bytes](beast::error_code ec, size_t) {
+        self->OnWrite(close, status, body_bytes, ec);
+      });
   keep_alive_while_handling_.reset();  // The write's completion holds the session now.
 }
 
 void HttpSession::OnWrite(bool close, int status, uint64_t body_bytes, beast::error_code ec) {
   response_.reset();
   ++core_->requests;
+  if (status >= 100 && status <= 599) ++core_->responses_by_status[status - 100];
   const double ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - started_)
           .count();

@@ -97,12 +97,12 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   std::string query_;  // Raw.
   std::string method_;
   bool keep_alive_ = false;
-  bool body_complete_ = true;      // The request's body has been read completely.
-  bool expect_continue_ = false;   // "Expect: 100-continue" not answered yet.
-  bool continue_writing_ = false;  // "100 Continue" is being written.
-  bool force_close_ = false;       // The response closes the connection (errors).
+  bool body_complete_ = true;                      // The request's body has been read completely.
+  bool expect_continue_ = false;                   // "Expect: 100-continue" not answered yet.
+  bool continue_writing_ = false;                  // "100 Continue" is being written.
+  bool force_close_ = false;                       // The response closes the connection (errors).
   std::optional<HttpResponse> deferred_response_;  // Arrived while "100 Continue" was written.
-  std::optional<HttpRequest> pending_;  // Waiting for its buffered body.
+  std::optional<HttpRequest> pending_;             // Waiting for its buffered body.
   std::chrono::steady_clock::time_point started_;
   // Streamed upload.
   std::vector<uint8_t> piece_;

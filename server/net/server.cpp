@@ -37,8 +37,8 @@ class Listener : public std::enable_shared_from_this<Listener> {
 
   Status Open(const tcp::endpoint& endpoint) {
     beast::error_code ec;
-    const std::string where = endpoint.address().to_string() + ":" +
-                              std::to_string(endpoint.port());
+    const std::string where =
+        endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
     acceptor_.open(endpoint.protocol(), ec);
     if (!ec) acceptor_.set_option(asio::socket_base::reuse_address(true), ec);
     if (!ec) acceptor_.bind(endpoint, ec);
@@ -69,10 +69,10 @@ class Listener : public std::enable_shared_from_this<Listener> {
  private:
   void DoAccept() {
     if (stopped_) return;
-    acceptor_.async_accept(asio::make_strand(ioc_), [self = shared_from_this()](
-                                                        beast::error_code ec, tcp::socket socket) {
-      self->OnAccept(ec, std::move(socket));
-    });
+    acceptor_.async_accept(asio::make_strand(ioc_),
+                           [self = shared_from_this()](beast::error_code ec, tcp::socket socket) {
+                             self->OnAccept(ec, std::move(socket));
+                           });
   }
 
   void OnAccept(beast::error_code ec, tcp::socket socket) {
@@ -158,8 +158,7 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
     std::error_code fs_ec;
     web_root = std::filesystem::canonical(options.web_root, fs_ec);
     if (fs_ec || !std::filesystem::is_directory(web_root, fs_ec)) {
-      return NotFoundError("server: web root " + options.web_root.string() +
-                           " is not a directory");
+      return NotFoundError("server: web root " + options.web_root.string() + " is not a directory");
     }
   }
   const tcp::endpoint endpoint(address, options.port);
@@ -193,11 +192,10 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
       });
     } catch (const std::system_error& e) {
       if (impl.threads.empty()) {
-        return ResourceExhaustedError(std::string("server: cannot start I/O threads: ") +
-                                      e.what());
+        return ResourceExhaustedError(std::string("server: cannot start I/O threads: ") + e.what());
       }
-      logger.Log(LogLevel::kWarning, "server: started only " +
-                                         std::to_string(impl.threads.size()) + " I/O threads");
+      logger.Log(LogLevel::kWarning,
+                 "server: started only " + std::to_string(impl.threads.size()) + " I/O threads");
       break;
     }
   }
@@ -225,8 +223,8 @@ void Server::Shutdown() {
   impl_->stopped = true;
   core.shutting_down = true;
   impl_->listener->Stop();
-  core.Log(LogLevel::kInfo, "shutting down: " + std::to_string(core.registry.size()) +
-                                " connections open");
+  core.Log(LogLevel::kInfo,
+           "shutting down: " + std::to_string(core.registry.size()) + " connections open");
   // Finish what is in flight: responses being prepared, WebSocket queues, close handshakes.
   core.registry.ForEach([](detail::Connection& c) { c.BeginShutdown(); });
   const auto timeout = core.options.shutdown_timeout;
@@ -251,5 +249,15 @@ size_t Server::open_connections() const { return impl_->core->registry.size(); }
 size_t Server::open_websockets() const { return impl_->core->websockets; }
 
 uint64_t Server::requests_served() const { return impl_->core->requests; }
+
+std::vector<std::pair<int, uint64_t>> Server::responses_by_status() const {
+  std::vector<std::pair<int, uint64_t>> out;
+  const auto& counts = impl_->core->responses_by_status;
+  for (size_t i = 0; i < counts.size(); ++i) {
+    const uint64_t n = counts[i].load();
+    if (n > 0) out.emplace_back(static_cast<int>(i) + 100, n);
+  }
+  return out;
+}
 
 }  // namespace octoscope::net

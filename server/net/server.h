@@ -26,6 +26,8 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "net/api_handler.h"
 #include "net/ws_handler.h"
@@ -89,6 +91,9 @@ class Server {
   size_t open_connections() const;
   size_t open_websockets() const;
   uint64_t requests_served() const;
+  // HTTP responses written so far, as (status code, count) for every code seen, ascending (the
+  // app's octoscope_http_requests_total{code}).
+  std::vector<std::pair<int, uint64_t>> responses_by_status() const;
 
  private:
   Server() = default;

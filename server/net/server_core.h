@@ -10,6 +10,7 @@
 #ifndef OCTOSCOPE_NET_SERVER_CORE_H_
 #define OCTOSCOPE_NET_SERVER_CORE_H_
 
+#include <array>
 #include <atomic>
 #include <boost/asio/post.hpp>
 #include <chrono>
@@ -119,6 +120,8 @@ struct ServerCore {
   std::atomic<bool> shutting_down{false};
   std::atomic<size_t> websockets{0};
   std::atomic<uint64_t> requests{0};
+  // HTTP responses written, by status code (100..599); index = code - 100.
+  std::array<std::atomic<uint64_t>, 500> responses_by_status{};
 
  private:
   std::mutex post_mu_;

@@ -56,8 +56,8 @@ std::optional<StaticFile> ResolveStaticFile(const fs::path& root, std::string_vi
   const fs::path candidate = fs::canonical(root / relative, ec);
   if (ec) return std::nullopt;
   // Symbolic links may point anywhere: the resolved file must still be below the root.
-  auto [root_end, unused] = std::mismatch(root.begin(), root.end(), candidate.begin(),
-                                          candidate.end());
+  auto [root_end, unused] =
+      std::mismatch(root.begin(), root.end(), candidate.begin(), candidate.end());
   (void)unused;
   if (root_end != root.end()) return std::nullopt;
   struct stat st {};

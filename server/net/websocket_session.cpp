@@ -86,7 +86,9 @@ OutgoingMessage::OutgoingMessage(std::shared_ptr<SinkState> state, std::string t
 OutgoingMessage::OutgoingMessage(std::shared_ptr<SinkState> state,
                                  std::shared_ptr<const std::vector<uint8_t>> data,
                                  WsSink::SendDone done)
-    : state_(std::move(state)), data_(std::move(data)), done_(std::move(done)),
+    : state_(std::move(state)),
+      data_(std::move(data)),
+      done_(std::move(done)),
       bytes_(data_->size()) {
   state_->queued_bytes += bytes_;
   ++state_->queued_messages;
@@ -160,15 +162,13 @@ void WebSocketSession::Start(http::request<http::empty_body> request) {
       [](websocket::response_type& response) { response.set(http::field::server, "octoscope"); }));
   ws_.read_message_max(core_->options.max_ws_message_bytes);
   ws_.auto_fragment(false);  // One frame per message: frames are large and sent whole.
-  ws_.async_accept(request, [self = shared_from_this()](beast::error_code ec) {
-    self->OnAccept(ec);
-  });
+  ws_.async_accept(request,
+                   [self = shared_from_this()](beast::error_code ec) { self->OnAccept(ec); });
 }
 
 void WebSocketSession::BeginShutdown() {
-  core_->Post(weak_from_this(), [](WebSocketSession& s) {
-    s.RequestClose(kCloseGoingAway, "server shutting down");
-  });
+  core_->Post(weak_from_this(),
+              [](WebSocketSession& s) { s.RequestClose(kCloseGoingAway, "server shutting down"); });
 }
 
 void WebSocketSession::ForceClose() {
@@ -200,9 +200,8 @@ void WebSocketSession::OnAccept(beast::error_code ec) {
 }
 
 void WebSocketSession::DoRead() {
-  ws_.async_read(read_buffer_, [self = shared_from_this()](beast::error_code ec, size_t) {
-    self->OnRead(ec);
-  });
+  ws_.async_read(read_buffer_,
+                 [self = shared_from_this()](beast::error_code ec, size_t) { self->OnRead(ec); });
 }
 
 void WebSocketSession::OnRead(beast::error_code ec) {
@@ -229,13 +228,14 @@ void WebSocketSession::OnRead(beast::error_code ec) {
 }
 
 void WebSocketSession::Enqueue(OutgoingMessage message) {
-  if (finished_ || close_requested_ || !accepted_) return;  // Completes unsent.
+  // Completes unsent when the connection is closing or dropped.
+  if (finished_ || close_requested_ || !accepted_ || !hard_close_reason_.empty()) return;
   if (!queue_.empty() && sink_state_->queued_bytes > core_->options.max_ws_queue_bytes) {
-    core_->Log(LogLevel::kWarning,
-               "WS " + info_.remote + ": " + std::to_string(sink_state_->queued_bytes.load()) +
-                   " bytes queued, over the limit of " +
-                   std::to_string(core_->options.max_ws_queue_bytes) +
-                   " (client not reading); closing");
+    core_->Log(LogLevel::kWarning, "WS " + info_.remote + ": " +
+                                       std::to_string(sink_state_->queued_bytes.load()) +
+                                       " bytes queued, over the limit of " +
+                                       std::to_string(core_->options.max_ws_queue_bytes) +
+                                       " (client not reading); closing");
     HardClose("send queue over " + std::to_string(core_->options.max_ws_queue_bytes) +
               " bytes (client not reading)");
     return;
@@ -253,9 +253,8 @@ void WebSocketSession::DoWrite() {
   writing_ = true;
   const OutgoingMessage& message = queue_.front();
   ws_.text(!message.binary());
-  ws_.async_write(message.buffer(), [self = shared_from_this()](beast::error_code ec, size_t) {
-    self->OnWrite(ec);
-  });
+  ws_.async_write(message.buffer(),
+                  [self = shared_from_this()](beast::error_code ec, size_t) { self->OnWrite(ec); });
 }
 
 void WebSocketSession::OnWrite(beast::error_code ec) {
@@ -318,20 +317,24 @@ void WebSocketSession::Finish(beast::error_code ec) {
   WsCloseInfo info;
   if (!hard_close_reason_.empty()) {
     info = {kCloseAbnormal, hard_close_reason_, true};
+  } else if (close_sent_ &&
+             (ec == websocket::error::closed || ec == asio::error::operation_aborted)) {
+    // Our close handshake ended the read loop (a read suspended behind Beast's close operation
+    // completes as aborted once the stream is closed).
+    info = {close_reason_.code, std::string(close_reason_.reason.c_str()), true};
   } else if (ec == websocket::error::closed) {
     if (close_requested_) {
       info = {close_reason_.code, std::string(close_reason_.reason.c_str()), true};
     } else {
       const websocket::close_reason& peer = ws_.reason();
       info = {peer.code == websocket::close_code::none ? uint16_t{1005} : uint16_t(peer.code),
-              "client closed" + (peer.reason.empty() ? std::string()
-                                                      : ": " + Printable(peer.reason.c_str(), 80)),
+              "client closed" +
+                  (peer.reason.empty() ? std::string() : ": " + Printable(peer.reason.c_str(), 80)),
               false};
     }
   } else if (ec == websocket::error::message_too_big) {
     info = {kCloseTooBig,
-            "message over " + std::to_string(core_->options.max_ws_message_bytes) + " bytes",
-            true};
+            "message over " + std::to_string(core_->options.max_ws_message_bytes) + " bytes", true};
   } else if (ec == beast::error::timeout) {
     info = {kCloseAbnormal, "timed out", true};
   } else {

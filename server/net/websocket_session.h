@@ -43,8 +43,8 @@ struct SinkState {
 class OutgoingMessage {
  public:
   OutgoingMessage(std::shared_ptr<SinkState> state, std::string text);
-  OutgoingMessage(std::shared_ptr<SinkState> state, std::shared_ptr<const std::vector<uint8_t>> data,
-                  WsSink::SendDone done);
+  OutgoingMessage(std::shared_ptr<SinkState> state,
+                  std::shared_ptr<const std::vector<uint8_t>> data, WsSink::SendDone done);
   OutgoingMessage(OutgoingMessage&& other) noexcept;
   OutgoingMessage& operator=(OutgoingMessage&&) = delete;
   ~OutgoingMessage();

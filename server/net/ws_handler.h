@@ -27,9 +27,9 @@ namespace octoscope::net {
 
 // WebSocket close codes used by the server (RFC 6455, 7.4.1).
 inline constexpr uint16_t kCloseNormal = 1000;
-inline constexpr uint16_t kCloseGoingAway = 1001;      // Server shutting down.
+inline constexpr uint16_t kCloseGoingAway = 1001;        // Server shutting down.
 inline constexpr uint16_t kCloseUnsupportedData = 1003;  // A binary message from the client.
-inline constexpr uint16_t kCloseAbnormal = 1006;       // Ended without a close handshake.
+inline constexpr uint16_t kCloseAbnormal = 1006;         // Ended without a close handshake.
 inline constexpr uint16_t kClosePolicyViolation = 1008;
 inline constexpr uint16_t kCloseTooBig = 1009;
 inline constexpr uint16_t kCloseInternalError = 1011;
@@ -70,7 +70,7 @@ struct WsCloseInfo {
   // The close code sent or received; kCloseAbnormal (1006) when the connection ended without a
   // close handshake (reset, timeout, a client that stopped reading).
   uint16_t code = kCloseAbnormal;
-  std::string reason;          // One line, for logs.
+  std::string reason;  // One line, for logs.
   bool initiated_by_server = false;
 };
 

@@ -1,18 +1,16 @@
 #include "protocol/api_json.h"
 
 #include <cmath>
-#include <optional>
 
-#include "octree/brick_geometry.h"
+#include "protocol/dataset_json.h"
+#include "protocol/json_fields.h"
 #include "protocol/query_string.h"
-#include "protocol/strict_json.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
 namespace {
 
-using json_fields::FieldError;
-using json_fields::Json;
+using Json = nlohmann::json;
 
 std::string Number(double v) { return std::isfinite(v) ? Json(v).dump() : "null"; }
 
@@ -35,11 +33,11 @@ Result<int64_t> QueryInteger(const QueryParameter& p, int64_t lo, int64_t hi) {
 }  // namespace
 
 std::string HttpErrorJson(std::string_view message) {
-  return "{\"error\":" + json_fields::Quote(json_fields::OneLine(message, 1000)) + "}";
+  return "{\"error\":" + Quote(OneLine(message, 1000)) + "}";
 }
 
 std::string HealthJson(const HealthInfo& h) {
-  return "{\"status\":\"ok\",\"version\":" + json_fields::Quote(h.version) +
+  return "{\"status\":\"ok\",\"version\":" + Quote(h.version) +
          ",\"uptime_s\":" + Number(h.uptime_s) + ",\"datasets\":" + std::to_string(h.datasets) +
          ",\"sessions\":" + std::to_string(h.sessions) + "}";
 }
@@ -60,11 +58,11 @@ Result<SlabQuery> ParseSlabQuery(std::string_view query) {
     if (*seen) return FieldError(path, "given twice");
     *seen = true;
     if (seen == &seen_z) {
-      OCTO_ASSIGN_OR_RETURN(q.z, QueryInteger(p, 0, octree::kMaxVolumeAxis - 1));
+      OCTO_ASSIGN_OR_RETURN(q.z, QueryInteger(p, 0, kMaxStreamAxis - 1));
     } else if (seen == &seen_depth) {
-      OCTO_ASSIGN_OR_RETURN(q.depth, QueryInteger(p, 1, octree::kMaxVolumeAxis));
+      OCTO_ASSIGN_OR_RETURN(q.depth, QueryInteger(p, 1, kMaxStreamAxis));
     } else if (seen == &seen_channel) {
-      OCTO_ASSIGN_OR_RETURN(int64_t c, QueryInteger(p, 0, octree::kMaxChannels - 1));
+      OCTO_ASSIGN_OR_RETURN(int64_t c, QueryInteger(p, 0, kMaxStreamChannels - 1));
       q.channel = static_cast<int>(c);
     } else {
       OCTO_ASSIGN_OR_RETURN(int64_t w, QueryInteger(p, 0, 1));
@@ -74,10 +72,10 @@ Result<SlabQuery> ParseSlabQuery(std::string_view query) {
   if (!seen_z) return FieldError("query parameter \"z\"", "missing");
   if (!seen_depth) return FieldError("query parameter \"depth\"", "missing");
   if (!seen_channel) return FieldError("query parameter \"channel\"", "missing");
-  if (q.z + q.depth > octree::kMaxVolumeAxis) {
-    return FieldError("query parameter \"depth\"",
-                      "z + depth = " + std::to_string(q.z + q.depth) + " exceeds " +
-                          std::to_string(octree::kMaxVolumeAxis) + " planes");
+  if (q.z + q.depth > kMaxStreamAxis) {
+    return FieldError("query parameter \"depth\"", "z + depth = " + std::to_string(q.z + q.depth) +
+                                                       " exceeds " +
+                                                       std::to_string(kMaxStreamAxis) + " planes");
   }
   return q;
 }

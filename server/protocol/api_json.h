@@ -1,26 +1,23 @@
-// HTTP API documents (docs/api.md): error bodies, the health document and the query of PUT
-// /api/datasets/{id}/slabs. Parsers are strict (unknown fields and parameters refused by name,
-// ranges checked) and bounded; they never throw.
+// HTTP API documents (docs/api.md) other than the dataset layer's (protocol/dataset_json.h):
+// error bodies, the health document, and the query and answer of PUT /api/datasets/{id}/slabs.
+// Parsers are strict (unknown parameters refused by name, ranges checked) and bounded; they
+// never throw.
 //
 // Thread safety: pure functions.
 #ifndef OCTOSCOPE_PROTOCOL_API_JSON_H_
 #define OCTOSCOPE_PROTOCOL_API_JSON_H_
 
-#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <string>
 #include <string_view>
-#include <vector>
 
 #include "util/result.h"
-#include "volume/data_type.h"
 
 namespace octoscope::protocol {
 
-// Largest JSON request body (the net layer refuses larger ones with 413 before parsing).
+// Largest JSON request body (the net layer refuses larger ones with 413 before reading them).
 inline constexpr size_t kMaxApiJsonBodyBytes = size_t{64} << 10;
-inline constexpr int kMaxApiJsonDepth = 8;
 
 // {"error": MESSAGE}; the message is made one line of at most 1000 bytes.
 std::string HttpErrorJson(std::string_view message);
@@ -36,8 +33,8 @@ std::string HealthJson(const HealthInfo& health);
 
 // The query of PUT /api/datasets/{id}/slabs: z, depth, channel, optional wait (0 or 1, default
 // 1); a "token" parameter is ignored (the net layer checked it). Ranges not depending on the
-// dataset are checked here (z + depth within octree::kMaxVolumeAxis, channel below
-// octree::kMaxChannels); the dataset checks its own size.
+// dataset are checked here (z + depth within kMaxStreamAxis, channel below
+// kMaxStreamChannels); the dataset checks its own size.
 struct SlabQuery {
   int64_t z = 0;
   int64_t depth = 0;

@@ -48,9 +48,6 @@ json DescriptionObject(const DatasetDescription& d) {
   return j;
 }
 
-// JSON text that survives any bytes in names (invalid UTF-8 is replaced, never thrown).
-std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
-
 }  // namespace
 
 std::string DatasetJson(const DatasetDescription& dataset) {

@@ -100,14 +100,12 @@ Status EncodeFrameHeader(const FrameHeader& h, std::span<uint8_t, kFrameHeaderBy
   return Status::Ok();
 }
 
-Result<std::vector<uint8_t>> BuildFrameMessage(FrameHeader header,
-                                               std::span<const uint8_t> image) {
+Result<std::vector<uint8_t>> BuildFrameMessage(FrameHeader header, std::span<const uint8_t> image) {
   if (image.size() > UINT32_MAX) return HeaderError("image larger than 4 GiB");
   header.image_bytes = static_cast<uint32_t>(image.size());
   std::vector<uint8_t> message(kFrameHeaderBytes + image.size());
-  OCTO_RETURN_IF_ERROR(
-      EncodeFrameHeader(header, std::span<uint8_t, kFrameHeaderBytes>(message.data(),
-                                                                        kFrameHeaderBytes)));
+  OCTO_RETURN_IF_ERROR(EncodeFrameHeader(
+      header, std::span<uint8_t, kFrameHeaderBytes>(message.data(), kFrameHeaderBytes)));
   if (!image.empty()) std::memcpy(message.data() + kFrameHeaderBytes, image.data(), image.size());
   return message;
 }

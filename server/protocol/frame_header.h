@@ -36,10 +36,10 @@ struct FrameHeader {
   bool lossless = false;  // The image holds the rendered pixels exactly (PNG).
   uint16_t width = 0;     // Pixels.
   uint16_t height = 0;
-  float progress = 0;       // Fraction of rays finished, [0, 1].
-  float render_ms = 0;      // >= 0.
-  float encode_ms = 0;      // >= 0.
-  float lod_bias = 0;       // Finite.
+  float progress = 0;          // Fraction of rays finished, [0, 1].
+  float render_ms = 0;         // >= 0.
+  float encode_ms = 0;         // >= 0.
+  float lod_bias = 0;          // Finite.
   uint32_t screenshot_id = 0;  // Tier kScreenshot only, else 0.
   uint32_t image_bytes = 0;    // Bytes of the image after the header.
 };

@@ -1,14 +1,23 @@
 #include "protocol/json_fields.h"
 
 #include <exception>
+#include <limits>
 #include <stdexcept>
 
-#include "protocol/json_parse.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
+namespace {
 
 using nlohmann::json;
+
+// Thrown from the parser callback to stop parsing at the first limit broken.
+class LimitError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+}  // namespace
 
 Status FieldError(const std::string& path, std::string_view problem) {
   return InvalidArgumentError(path + ": " + std::string(problem));
@@ -26,18 +35,80 @@ std::string Index(const std::string& path, size_t i) {
   return path + "[" + std::to_string(i) + "]";
 }
 
-Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint64_t max_bytes,
-                             int max_depth) {
-  if (text.size() > max_bytes) {
-    return InvalidArgumentError(std::string(what) + ": larger than " + std::to_string(max_bytes) +
-                                " bytes");
+namespace {
+
+// Parses `text` with the limits (see ParseJsonObject); errors are kInvalidArgument "<problem>".
+Result<json> ParseBounded(std::string_view text, int max_depth, size_t max_string_bytes) {
+  // The keys of each open object, to refuse duplicates ({"a":1,"a":2} would otherwise mean
+  // whatever the last one says). Objects are small (every schema's is), so a list is enough.
+  std::vector<std::vector<std::string>> open_objects;
+  const json::parser_callback_t check = [&](int depth, json::parse_event_t event, json& parsed) {
+    switch (event) {
+      case json::parse_event_t::object_start:
+      case json::parse_event_t::array_start:
+        // `depth` counts the containers already open around this one.
+        if (depth + 1 > max_depth) {
+          throw LimitError("nested too deeply (more than " + std::to_string(max_depth) +
+                           " levels)");
+        }
+        if (event == json::parse_event_t::object_start) open_objects.emplace_back();
+        break;
+      case json::parse_event_t::object_end:
+        if (!open_objects.empty()) open_objects.pop_back();
+        break;
+      case json::parse_event_t::key: {
+        const std::string& key = parsed.get_ref<const std::string&>();
+        if (key.size() > max_string_bytes) {
+          throw LimitError("a key is longer than " + std::to_string(max_string_bytes) + " bytes");
+        }
+        if (!open_objects.empty()) {
+          std::vector<std::string>& keys = open_objects.back();
+          for (const std::string& k : keys) {
+            if (k == key) throw LimitError("duplicate key \"" + Printable(key, 60) + "\"");
+          }
+          keys.push_back(key);
+        }
+        break;
+      }
+      case json::parse_event_t::value:
+        if (parsed.is_string() && parsed.get_ref<const std::string&>().size() > max_string_bytes) {
+          throw LimitError("a string is longer than " + std::to_string(max_string_bytes) +
+                           " bytes");
+        }
+        break;
+      case json::parse_event_t::array_end:
+        break;
+    }
+    return true;
+  };
+  try {
+    return json::parse(text.begin(), text.end(), check);
+  } catch (const LimitError& e) {
+    return InvalidArgumentError(e.what());
+  } catch (const std::exception& e) {
+    // e.what() names the position; it may quote the input, so it is shortened and escaped.
+    return InvalidArgumentError("not valid JSON: " + Printable(e.what(), 200));
   }
-  Result<json> parsed = ParseJsonLimited(text, max_depth);
-  if (!parsed.ok())
-    return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
-  json doc = std::move(*parsed);
-  if (!doc.is_object()) {
-    return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
+}
+
+}  // namespace
+
+Result<json> ParseJsonLimited(std::string_view text, int max_depth) {
+  Result<json> doc = ParseBounded(text, max_depth, std::numeric_limits<size_t>::max());
+  if (!doc.ok()) return CorruptError(doc.status().message());
+  return doc;
+}
+
+Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint64_t max_bytes,
+                             int max_depth, size_t max_string_bytes) {
+  if (text.size() > max_bytes) {
+    return InvalidArgumentError(std::string(what) + ": " + std::to_string(text.size()) +
+                                " bytes, larger than " + std::to_string(max_bytes));
+  }
+  Result<json> doc = ParseBounded(text, max_depth, max_string_bytes);
+  if (!doc.ok()) return InvalidArgumentError(std::string(what) + ": " + doc.status().message());
+  if (!doc->is_object()) {
+    return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(*doc));
   }
   return doc;
 }
@@ -55,6 +126,17 @@ Status CheckKeys(const json& object, const std::string& path,
     }
   }
   return Status::Ok();
+}
+
+Status CheckObject(const json& j, const std::string& path) {
+  if (!j.is_object()) return FieldError(path, "must be an object, got " + TypeOf(j));
+  return Status::Ok();
+}
+
+Result<const json*> Require(const json& object, const std::string& path, std::string_view key) {
+  auto it = object.find(key);
+  if (it == object.end()) return FieldError(Join(path, key), "missing");
+  return &*it;
 }
 
 Result<double> GetNumber(const json& j, const std::string& path) {
@@ -79,7 +161,8 @@ Result<int64_t> GetInteger(const json& j, const std::string& path, int64_t lo, i
                                 (j.is_number_float() ? Printable(j.dump(), 40) : TypeOf(j)));
   }
   if (j.is_number_unsigned() && j.get<uint64_t>() > static_cast<uint64_t>(INT64_MAX)) {
-    return FieldError(path, "is " + Printable(j.dump(), 40) + ", too large");
+    return FieldError(path, "is " + Printable(j.dump(), 40) + ", must be in " + std::to_string(lo) +
+                                ".." + std::to_string(hi));
   }
   const int64_t v = j.get<int64_t>();
   if (v < lo || v > hi) {
@@ -97,6 +180,23 @@ Result<bool> GetBool(const json& j, const std::string& path) {
 Result<std::string> GetString(const json& j, const std::string& path) {
   if (!j.is_string()) return FieldError(path, "must be a string, got " + TypeOf(j));
   return j.get<std::string>();
+}
+
+Result<std::string> GetString(const json& j, const std::string& path, size_t max_bytes,
+                              bool single_line) {
+  if (!j.is_string()) return FieldError(path, "must be a string, got " + TypeOf(j));
+  const std::string& s = j.get_ref<const std::string&>();
+  if (s.size() > max_bytes) {
+    return FieldError(path, "is " + std::to_string(s.size()) + " bytes long, at most " +
+                                std::to_string(max_bytes));
+  }
+  if (single_line) {
+    for (char c : s) {
+      const unsigned char u = static_cast<unsigned char>(c);
+      if (u < 0x20 || u == 0x7f) return FieldError(path, "must not contain control characters");
+    }
+  }
+  return s;
 }
 
 Status CheckArray(const json& j, const std::string& path, size_t length) {
@@ -117,5 +217,18 @@ Result<std::vector<double>> GetNumbers(const json& j, const std::string& path, s
   }
   return out;
 }
+
+std::string OneLine(std::string_view text, size_t max_bytes) {
+  std::string line(text.substr(0, max_bytes));
+  for (char& c : line) {
+    const unsigned char u = static_cast<unsigned char>(c);
+    if (u < 0x20 || u == 0x7f) c = ' ';
+  }
+  return line;
+}
+
+std::string Quote(std::string_view text) { return Dump(json(std::string(text))); }
+
+std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
 }  // namespace octoscope::protocol

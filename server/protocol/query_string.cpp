@@ -34,7 +34,8 @@ Result<std::string> PercentDecode(std::string_view text, bool plus_is_space) {
     } else if (c == '+' && plus_is_space) {
       c = ' ';
     }
-    if (c == '\0') return InvalidArgumentError("encoded NUL byte in \"" + Printable(text, 80) + "\"");
+    if (c == '\0')
+      return InvalidArgumentError("encoded NUL byte in \"" + Printable(text, 80) + "\"");
     out += c;
   }
   return out;

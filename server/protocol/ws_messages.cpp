@@ -4,32 +4,37 @@
 #include <cmath>
 #include <initializer_list>
 #include <utility>
+#include <vector>
 
 #include "octree/brick_geometry.h"
-#include "protocol/strict_json.h"
+#include "protocol/json_fields.h"
 #include "protocol/render_json.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
 namespace {
 
-using json_fields::CheckKeys;
-using json_fields::CheckObject;
-using json_fields::FieldError;
-using json_fields::Join;
-using json_fields::Json;
-using json_fields::Quote;
+using Json = nlohmann::json;
 
-constexpr json_fields::ParseLimits kMessageLimits{kMaxClientMessageBytes, kMaxClientMessageDepth,
-                                                  kMaxClientStringBytes};
+Result<Json> ParseMessageText(std::string_view text, std::string_view what) {
+  return ParseJsonObject(text, what, kMaxClientMessageBytes, kMaxClientMessageDepth,
+                         kMaxClientStringBytes);
+}
 
-constexpr std::string_view kTypeNames[] = {"hello",    "open",        "camera",      "params",
-                                           "slices",   "viewport",    "interaction", "quality",
-                                           "ack",      "screenshot",  "ping"};
+// Three finite numbers in [lo, hi].
+Result<std::array<double, 3>> GetNumber3(const Json& j, const std::string& path, double lo,
+                                         double hi) {
+  OCTO_ASSIGN_OR_RETURN(std::vector<double> v, GetNumbers(j, path, 3, lo, hi));
+  return std::array<double, 3>{v[0], v[1], v[2]};
+}
+
+constexpr std::string_view kTypeNames[] = {"hello",  "open",       "camera",      "params",
+                                           "slices", "viewport",   "interaction", "quality",
+                                           "ack",    "screenshot", "ping"};
 
 // Rewrites an error of a render_json parser ("position: must be ...", "camera: missing ...",
 // "unknown key ...") so that it names the field from the message's root ("camera.position: ...").
-Status Reprefix(const Status& status, std::string_view strip, std::string_view path) {
+Status Reprefix(const Status& status, std::string_view strip, const std::string& path) {
   std::string_view m = status.message();
   if (m.starts_with(strip)) m.remove_prefix(strip.size());
   const size_t colon = m.find(": ");
@@ -39,24 +44,23 @@ Status Reprefix(const Status& status, std::string_view strip, std::string_view p
                               std::string(m));
 }
 
-Result<ViewId> GetView(const Json& j, std::string_view path) {
-  OCTO_ASSIGN_OR_RETURN(std::string name, json_fields::GetString(j, path, 16, true));
+Result<ViewId> GetView(const Json& j, const std::string& path) {
+  OCTO_ASSIGN_OR_RETURN(std::string name, GetString(j, path, 16, true));
   std::optional<ViewId> view = ViewFromName(name);
   if (!view) return FieldError(path, "is \"" + Printable(name, 16) + "\", expected 3d, x, y or z");
   return *view;
 }
 
-Result<render::Camera> CameraFromJson(const Json& j, std::string_view path) {
+Result<render::Camera> CameraFromJson(const Json& j, const std::string& path) {
   OCTO_RETURN_IF_ERROR(CheckObject(j, path));
-  Result<render::Camera> camera =
-      ParseCameraJson(json_fields::Dump(j), render::Projection::kOrthographic, 1, 1);
+  Result<render::Camera> camera = ParseCameraJson(Dump(j), render::Projection::kOrthographic, 1, 1);
   if (!camera.ok()) return Reprefix(camera.status(), "camera: ", path);
   return camera;
 }
 
 // Validates a render-parameter document as far as it can be without the dataset: every field,
 // against defaults with as many channels as the document lists.
-Result<std::string> ParamsFromJson(const Json& j, std::string_view path) {
+Result<std::string> ParamsFromJson(const Json& j, const std::string& path) {
   OCTO_RETURN_IF_ERROR(CheckObject(j, path));
   int channels = 1;
   if (auto it = j.find("channels"); it != j.end() && it->is_array()) {
@@ -67,7 +71,7 @@ Result<std::string> ParamsFromJson(const Json& j, std::string_view path) {
     }
     channels = std::max<int>(1, static_cast<int>(it->size()));
   }
-  std::string text = json_fields::Dump(j);
+  std::string text = Dump(j);
   const render::RenderParams defaults =
       render::DefaultRenderParams(channels, volume::DataType::kUint16, render::RenderMode::kDvr);
   Result<render::RenderParams> params = ParseRenderParamsJson(text, defaults);
@@ -75,7 +79,7 @@ Result<std::string> ParamsFromJson(const Json& j, std::string_view path) {
   return text;
 }
 
-Result<StateUpdate> StateFromJson(const Json& j, std::string_view path) {
+Result<StateUpdate> StateFromJson(const Json& j, const std::string& path) {
   OCTO_RETURN_IF_ERROR(CheckObject(j, path));
   OCTO_RETURN_IF_ERROR(CheckKeys(j, path, {"camera", "params", "slices", "layout"}));
   StateUpdate state;
@@ -90,9 +94,9 @@ Result<StateUpdate> StateFromJson(const Json& j, std::string_view path) {
     OCTO_RETURN_IF_ERROR(CheckObject(*it, slices));
     OCTO_RETURN_IF_ERROR(CheckKeys(*it, slices, {"position_um"}));
     if (auto p = it->find("position_um"); p != it->end()) {
-      OCTO_ASSIGN_OR_RETURN(state.slice_position_um,
-                            json_fields::GetNumber3(*p, Join(slices, "position_um"),
-                                                    -kMaxCoordinateUm, kMaxCoordinateUm));
+      OCTO_ASSIGN_OR_RETURN(
+          state.slice_position_um,
+          GetNumber3(*p, Join(slices, "position_um"), -kMaxCoordinateUm, kMaxCoordinateUm));
     }
   }
   if (auto it = j.find("layout"); it != j.end()) {
@@ -111,9 +115,8 @@ Result<StateUpdate> StateFromJson(const Json& j, std::string_view path) {
 // One parser per message type; `doc` has been checked to be an object with this "type".
 Result<ClientMessage> ParseHello(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "hello", {"type", "client", "protocol"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* protocol, json_fields::Require(doc, "hello", "protocol"));
-  OCTO_ASSIGN_OR_RETURN(int64_t version,
-                        json_fields::GetInteger(*protocol, "hello.protocol", 0, INT32_MAX));
+  OCTO_ASSIGN_OR_RETURN(const Json* protocol, Require(doc, "hello", "protocol"));
+  OCTO_ASSIGN_OR_RETURN(int64_t version, GetInteger(*protocol, "hello.protocol", 0, INT32_MAX));
   if (version != kProtocolVersion) {
     return FieldError("hello.protocol", "is " + std::to_string(version) +
                                             ", this server speaks protocol " +
@@ -121,23 +124,21 @@ Result<ClientMessage> ParseHello(const Json& doc) {
   }
   HelloMessage hello;
   if (auto it = doc.find("client"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(hello.client,
-                          json_fields::GetString(*it, "hello.client", kMaxClientNameBytes, true));
+    OCTO_ASSIGN_OR_RETURN(hello.client, GetString(*it, "hello.client", kMaxClientNameBytes, true));
   }
   return ClientMessage(std::move(hello));
 }
 
 Result<ClientMessage> ParseOpen(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "open", {"type", "dataset", "state"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* dataset, json_fields::Require(doc, "open", "dataset"));
+  OCTO_ASSIGN_OR_RETURN(const Json* dataset, Require(doc, "open", "dataset"));
   OpenMessage open;
   OCTO_ASSIGN_OR_RETURN(open.dataset,
-                        json_fields::GetString(*dataset, "open.dataset", kMaxDatasetIdBytes, true));
-  const bool valid_id = !open.dataset.empty() &&
-                        std::all_of(open.dataset.begin(), open.dataset.end(), [](char c) {
-                          return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' ||
-                                 c == '-';
-                        });
+                        GetString(*dataset, "open.dataset", kMaxDatasetIdBytes, true));
+  const bool valid_id =
+      !open.dataset.empty() && std::all_of(open.dataset.begin(), open.dataset.end(), [](char c) {
+        return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+      });
   if (!valid_id) {
     return FieldError("open.dataset", "\"" + Printable(open.dataset, 40) +
                                           "\" is not a dataset id (1 to 64 of a-z 0-9 _ -)");
@@ -150,54 +151,51 @@ Result<ClientMessage> ParseOpen(const Json& doc) {
 
 Result<ClientMessage> ParseCamera(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "camera", {"type", "camera"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* camera, json_fields::Require(doc, "camera", "camera"));
+  OCTO_ASSIGN_OR_RETURN(const Json* camera, Require(doc, "camera", "camera"));
   OCTO_ASSIGN_OR_RETURN(render::Camera parsed, CameraFromJson(*camera, "camera.camera"));
   return ClientMessage(CameraMessage{std::move(parsed)});
 }
 
 Result<ClientMessage> ParseParams(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "params", {"type", "params"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* params, json_fields::Require(doc, "params", "params"));
+  OCTO_ASSIGN_OR_RETURN(const Json* params, Require(doc, "params", "params"));
   OCTO_ASSIGN_OR_RETURN(std::string text, ParamsFromJson(*params, "params.params"));
   return ClientMessage(ParamsMessage{std::move(text)});
 }
 
 Result<ClientMessage> ParseSlices(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "slices", {"type", "position_um"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* position, json_fields::Require(doc, "slices", "position_um"));
+  OCTO_ASSIGN_OR_RETURN(const Json* position, Require(doc, "slices", "position_um"));
   SlicesMessage slices;
-  OCTO_ASSIGN_OR_RETURN(slices.position_um,
-                        json_fields::GetNumber3(*position, "slices.position_um",
-                                                -kMaxCoordinateUm, kMaxCoordinateUm));
+  OCTO_ASSIGN_OR_RETURN(slices.position_um, GetNumber3(*position, "slices.position_um",
+                                                       -kMaxCoordinateUm, kMaxCoordinateUm));
   return ClientMessage(std::move(slices));
 }
 
 Result<ClientMessage> ParseViewport(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "viewport", {"type", "view", "width", "height", "dpr"}));
   ViewportMessage viewport;
-  OCTO_ASSIGN_OR_RETURN(const Json* view, json_fields::Require(doc, "viewport", "view"));
+  OCTO_ASSIGN_OR_RETURN(const Json* view, Require(doc, "viewport", "view"));
   OCTO_ASSIGN_OR_RETURN(viewport.view, GetView(*view, "viewport.view"));
-  OCTO_ASSIGN_OR_RETURN(const Json* width, json_fields::Require(doc, "viewport", "width"));
-  OCTO_ASSIGN_OR_RETURN(int64_t w,
-                        json_fields::GetInteger(*width, "viewport.width", 0, kMaxViewportCssPixels));
-  OCTO_ASSIGN_OR_RETURN(const Json* height, json_fields::Require(doc, "viewport", "height"));
-  OCTO_ASSIGN_OR_RETURN(
-      int64_t h, json_fields::GetInteger(*height, "viewport.height", 0, kMaxViewportCssPixels));
+  OCTO_ASSIGN_OR_RETURN(const Json* width, Require(doc, "viewport", "width"));
+  OCTO_ASSIGN_OR_RETURN(int64_t w, GetInteger(*width, "viewport.width", 0, kMaxViewportCssPixels));
+  OCTO_ASSIGN_OR_RETURN(const Json* height, Require(doc, "viewport", "height"));
+  OCTO_ASSIGN_OR_RETURN(int64_t h,
+                        GetInteger(*height, "viewport.height", 0, kMaxViewportCssPixels));
   viewport.width = static_cast<int>(w);
   viewport.height = static_cast<int>(h);
   if (auto it = doc.find("dpr"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(viewport.dpr, json_fields::GetNumber(*it, "viewport.dpr",
-                                                               kMinDevicePixelRatio,
-                                                               kMaxDevicePixelRatio));
+    OCTO_ASSIGN_OR_RETURN(
+        viewport.dpr, GetNumberIn(*it, "viewport.dpr", kMinDevicePixelRatio, kMaxDevicePixelRatio));
   }
   return ClientMessage(std::move(viewport));
 }
 
 Result<ClientMessage> ParseInteraction(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "interaction", {"type", "active"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* active, json_fields::Require(doc, "interaction", "active"));
+  OCTO_ASSIGN_OR_RETURN(const Json* active, Require(doc, "interaction", "active"));
   InteractionMessage interaction;
-  OCTO_ASSIGN_OR_RETURN(interaction.active, json_fields::GetBool(*active, "interaction.active"));
+  OCTO_ASSIGN_OR_RETURN(interaction.active, GetBool(*active, "interaction.active"));
   return ClientMessage(std::move(interaction));
 }
 
@@ -206,60 +204,57 @@ Result<ClientMessage> ParseQuality(const Json& doc) {
       doc, "quality", {"type", "jpeg_interactive", "jpeg_final", "lossless_final", "lod_bias"}));
   QualityMessage quality;
   if (auto it = doc.find("jpeg_interactive"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(int64_t q, json_fields::GetInteger(*it, "quality.jpeg_interactive",
-                                                             kMinJpegInteractive,
-                                                             kMaxJpegInteractive));
+    OCTO_ASSIGN_OR_RETURN(int64_t q, GetInteger(*it, "quality.jpeg_interactive",
+                                                kMinJpegInteractive, kMaxJpegInteractive));
     quality.jpeg_interactive = static_cast<int>(q);
   }
   if (auto it = doc.find("jpeg_final"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(int64_t q, json_fields::GetInteger(*it, "quality.jpeg_final",
-                                                             kMinJpegFinal, kMaxJpegFinal));
+    OCTO_ASSIGN_OR_RETURN(int64_t q,
+                          GetInteger(*it, "quality.jpeg_final", kMinJpegFinal, kMaxJpegFinal));
     quality.jpeg_final = static_cast<int>(q);
   }
   if (auto it = doc.find("lossless_final"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(quality.lossless_final,
-                          json_fields::GetBool(*it, "quality.lossless_final"));
+    OCTO_ASSIGN_OR_RETURN(quality.lossless_final, GetBool(*it, "quality.lossless_final"));
   }
   if (auto it = doc.find("lod_bias"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(quality.lod_bias, json_fields::GetNumber(*it, "quality.lod_bias",
-                                                                   kMinLodBias, kMaxLodBias));
+    OCTO_ASSIGN_OR_RETURN(quality.lod_bias,
+                          GetNumberIn(*it, "quality.lod_bias", kMinLodBias, kMaxLodBias));
   }
   return ClientMessage(std::move(quality));
 }
 
 Result<ClientMessage> ParseAck(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "ack", {"type", "frame"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* frame, json_fields::Require(doc, "ack", "frame"));
-  OCTO_ASSIGN_OR_RETURN(int64_t id, json_fields::GetInteger(*frame, "ack.frame", 1,
-                                                            static_cast<int64_t>(kMaxSafeInteger)));
+  OCTO_ASSIGN_OR_RETURN(const Json* frame, Require(doc, "ack", "frame"));
+  OCTO_ASSIGN_OR_RETURN(int64_t id,
+                        GetInteger(*frame, "ack.frame", 1, static_cast<int64_t>(kMaxSafeInteger)));
   return ClientMessage(AckMessage{static_cast<uint64_t>(id)});
 }
 
 Result<ClientMessage> ParseScreenshot(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "screenshot", {"type", "view", "scale", "id"}));
   ScreenshotMessage shot;
-  OCTO_ASSIGN_OR_RETURN(const Json* view, json_fields::Require(doc, "screenshot", "view"));
+  OCTO_ASSIGN_OR_RETURN(const Json* view, Require(doc, "screenshot", "view"));
   OCTO_ASSIGN_OR_RETURN(shot.view, GetView(*view, "screenshot.view"));
   if (auto it = doc.find("scale"); it != doc.end()) {
-    OCTO_ASSIGN_OR_RETURN(int64_t scale, json_fields::GetInteger(*it, "screenshot.scale", 1, 2));
+    OCTO_ASSIGN_OR_RETURN(int64_t scale, GetInteger(*it, "screenshot.scale", 1, 2));
     shot.scale = static_cast<int>(scale);
   }
-  OCTO_ASSIGN_OR_RETURN(const Json* id, json_fields::Require(doc, "screenshot", "id"));
-  OCTO_ASSIGN_OR_RETURN(int64_t value, json_fields::GetInteger(*id, "screenshot.id", 0, UINT32_MAX));
+  OCTO_ASSIGN_OR_RETURN(const Json* id, Require(doc, "screenshot", "id"));
+  OCTO_ASSIGN_OR_RETURN(int64_t value, GetInteger(*id, "screenshot.id", 0, UINT32_MAX));
   shot.id = static_cast<uint32_t>(value);
   return ClientMessage(std::move(shot));
 }
 
 Result<ClientMessage> ParsePing(const Json& doc) {
   OCTO_RETURN_IF_ERROR(CheckKeys(doc, "ping", {"type", "t"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* t, json_fields::Require(doc, "ping", "t"));
+  OCTO_ASSIGN_OR_RETURN(const Json* t, Require(doc, "ping", "t"));
   PingMessage ping;
-  OCTO_ASSIGN_OR_RETURN(ping.t, json_fields::GetNumber(*t, "ping.t", -HUGE_VAL, HUGE_VAL));
+  OCTO_ASSIGN_OR_RETURN(ping.t, GetNumberIn(*t, "ping.t", -HUGE_VAL, HUGE_VAL));
   return ClientMessage(std::move(ping));
 }
 
 std::string Number(double v) { return Json(v).dump(); }
-
 
 }  // namespace
 
@@ -269,15 +264,14 @@ std::string_view MessageTypeName(const ClientMessage& message) {
 
 Result<ClientMessage> ParseClientMessage(std::string_view text, std::string* type) {
   if (type) type->clear();
-  OCTO_ASSIGN_OR_RETURN(Json doc, json_fields::ParseObject(text, "message", kMessageLimits));
-  OCTO_ASSIGN_OR_RETURN(const Json* type_field, json_fields::Require(doc, "", "type"));
+  OCTO_ASSIGN_OR_RETURN(Json doc, ParseMessageText(text, "message"));
+  OCTO_ASSIGN_OR_RETURN(const Json* type_field, Require(doc, "", "type"));
   OCTO_ASSIGN_OR_RETURN(std::string name,
-                        json_fields::GetString(*type_field, "type", kMaxClientStringBytes, false));
+                        GetString(*type_field, "type", kMaxClientStringBytes, false));
   using Parser = Result<ClientMessage> (*)(const Json&);
-  static constexpr Parser kParsers[] = {ParseHello,       ParseOpen,    ParseCamera, ParseParams,
-                                        ParseSlices,      ParseViewport, ParseInteraction,
-                                        ParseQuality,     ParseAck,     ParseScreenshot,
-                                        ParsePing};
+  static constexpr Parser kParsers[] = {
+      ParseHello,       ParseOpen,    ParseCamera, ParseParams,     ParseSlices, ParseViewport,
+      ParseInteraction, ParseQuality, ParseAck,    ParseScreenshot, ParsePing};
   static_assert(std::size(kParsers) == std::size(kTypeNames));
   static_assert(std::size(kTypeNames) == std::variant_size_v<ClientMessage>);
   for (size_t i = 0; i < std::size(kTypeNames); ++i) {
@@ -287,13 +281,13 @@ Result<ClientMessage> ParseClientMessage(std::string_view text, std::string* typ
   }
   std::string known;
   for (std::string_view k : kTypeNames) known += (known.empty() ? "" : ", ") + std::string(k);
-  return FieldError("type", "unknown message type \"" + Printable(name, 40) + "\" (known: " +
-                                known + ")");
+  return FieldError("type",
+                    "unknown message type \"" + Printable(name, 40) + "\" (known: " + known + ")");
 }
 
 Result<StateUpdate> ParseStateDocument(std::string_view text, std::string_view path) {
-  OCTO_ASSIGN_OR_RETURN(Json doc, json_fields::ParseObject(text, path, kMessageLimits));
-  return StateFromJson(doc, path);
+  OCTO_ASSIGN_OR_RETURN(Json doc, ParseMessageText(text, path));
+  return StateFromJson(doc, std::string(path));
 }
 
 Result<render::RenderParams> ApplyParams(std::string_view params_json,
@@ -354,8 +348,7 @@ std::string DatasetEvent(std::string_view dataset_json) {
 }
 
 std::string ErrorEvent(std::string_view message, std::string_view request, bool fatal) {
-  std::string out =
-      "{\"type\":\"error\",\"message\":" + Quote(json_fields::OneLine(message, 1000));
+  std::string out = "{\"type\":\"error\",\"message\":" + Quote(OneLine(message, 1000));
   if (!request.empty()) out += ",\"request\":" + Quote(request);
   out += std::string(",\"fatal\":") + (fatal ? "true" : "false") + "}";
   return out;

@@ -3,9 +3,10 @@
 //
 // Parsing is strict and bounded: at most kMaxClientMessageBytes of text, nesting at most
 // kMaxClientMessageDepth, strings at most kMaxClientStringBytes, no duplicate keys; unknown
-// types and fields, wrong JSON types and out-of-range values are kInvalidArgument errors whose
-// message starts with the offending field's path ("viewport.width: is 9000, must be in [0,
-// 8192]"). The camera and render-parameter documents are checked by protocol/render_json.h.
+// types and fields, wrong JSON types and out-of-range values are kInvalidArgument errors naming
+// the offending field by its path from the message's root ("viewport.width: is 9000, must be in
+// 0..8192", "unknown key \"x\" in ping (known: type, t)"). The camera and render-parameter
+// documents are checked by protocol/render_json.h.
 // Nothing throws out of these functions, whatever the input.
 //
 // Thread safety: pure functions; the message structs are plain values.
@@ -123,10 +124,9 @@ struct PingMessage {
   double t = 0;  // Finite; echoed by pong.
 };
 
-using ClientMessage =
-    std::variant<HelloMessage, OpenMessage, CameraMessage, ParamsMessage, SlicesMessage,
-                 ViewportMessage, InteractionMessage, QualityMessage, AckMessage,
-                 ScreenshotMessage, PingMessage>;
+using ClientMessage = std::variant<HelloMessage, OpenMessage, CameraMessage, ParamsMessage,
+                                   SlicesMessage, ViewportMessage, InteractionMessage,
+                                   QualityMessage, AckMessage, ScreenshotMessage, PingMessage>;
 
 // The message's "type" ("hello", "open", ...).
 std::string_view MessageTypeName(const ClientMessage& message);

@@ -10,15 +10,13 @@
 #include <stdexcept>
 #include <string>
 
-#include "protocol/json_parse.h"
+#include "protocol/json_fields.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
 namespace {
 
 using nlohmann::json;
-
-std::string TypeOf(const json& j) { return std::string(j.type_name()); }
 
 // "where" names the key path in messages: `"chunks"[2]`, `codecs[1].configuration.cname`.
 Status Bad(const std::string& where, const std::string& problem) {

@@ -28,8 +28,6 @@ struct FramePolicyOptions {
   std::chrono::milliseconds idle_delay{200};  // Quiet time before refining.
 };
 
-enum class FrameTier : uint8_t { kInteractive = 0, kRefining = 1, kFinal = 2, kScreenshot = 3 };
-
 // A frame the caller should submit now. Submitting it replaces whatever the view had pending or
 // in flight (the render service's latest-state-wins slot).
 struct FrameOrder {

@@ -6,13 +6,14 @@
 #include <atomic>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <random>
 #include <string>
 #include <thread>
 #include <vector>
 
-#include "net/server.h"
 #include "net/net_test_client.h"
+#include "net/server.h"
 #include "net/test_handlers.h"
 
 namespace octoscope::net {
@@ -33,9 +34,9 @@ constexpr char kToken[] = "s3cret-token-0123456789abcdef";
 
 fs::path MakeTempDir(const std::string& name) {
   static std::atomic<int> counter{0};
-  fs::path dir = fs::temp_directory_path() /
-                 ("octoscope-net-" + name + "-" + std::to_string(getpid()) + "-" +
-                  std::to_string(counter++));
+  fs::path dir =
+      fs::temp_directory_path() /
+      ("octoscope-net-" + name + "-" + std::to_string(getpid()) + "-" + std::to_string(counter++));
   fs::remove_all(dir);
   fs::create_directories(dir);
   return dir;
@@ -82,7 +83,8 @@ class HttpServerTest : public ::testing::Test {
   void TearDown() override {
     server_.reset();
     if (HasFailure()) {
-      for (const std::string& line : logger_.lines()) std::fprintf(stderr, "log: %s\n", line.c_str());
+      for (const std::string& line : logger_.lines())
+        std::fprintf(stderr, "log: %s\n", line.c_str());
     }
     fs::remove_all(dir_);
   }
@@ -146,8 +148,7 @@ TEST_F(HttpServerTest, BadOptionsAreRefused) {
             StatusCode::kInvalidArgument);
   options.io_threads = 1;
   options.web_root = dir_ / "missing";
-  EXPECT_EQ(Server::Start(options, api_, factory, logger_).status().code(),
-            StatusCode::kNotFound);
+  EXPECT_EQ(Server::Start(options, api_, factory, logger_).status().code(), StatusCode::kNotFound);
 }
 
 TEST_F(HttpServerTest, ServesStaticFilesWithMimeTypesAndCachingHeaders) {
@@ -224,10 +225,18 @@ TEST_F(HttpServerTest, HeadAnswersHeadersWithoutBody) {
 TEST_F(HttpServerTest, PathsOutsideTheWebRootAreRefused) {
   Start();
   const char* attacks[] = {
-      "/../secret.txt",       "/%2e%2e/secret.txt", "/sub/../../secret.txt",
-      "/sub/%2e%2e/%2e%2e/secret.txt", "/link-out.txt", "/.hidden",
-      "//secret.txt",         "/sub%2f..%2f..%2fsecret.txt", "/..%5csecret.txt",
-      "/index.html%00.png",   "/sub",               "/missing.js",
+      "/../secret.txt",
+      "/%2e%2e/secret.txt",
+      "/sub/../../secret.txt",
+      "/sub/%2e%2e/%2e%2e/secret.txt",
+      "/link-out.txt",
+      "/.hidden",
+      "//secret.txt",
+      "/sub%2f..%2f..%2fsecret.txt",
+      "/..%5csecret.txt",
+      "/index.html%00.png",
+      "/sub",
+      "/missing.js",
   };
   for (const char* target : attacks) {
     SCOPED_TRACE(target);
@@ -302,6 +311,12 @@ TEST_F(HttpServerTest, ApiAndMetricsRequireTheToken) {
     EXPECT_EQ(line.find(kToken), std::string::npos) << line;
   }
   EXPECT_TRUE(logger_.Contains("GET /api/echo 200"));
+  // Responses are counted by status for the metrics.
+  std::map<int, uint64_t> by_status;
+  for (const auto& [code, count] : server_->responses_by_status()) by_status[code] = count;
+  EXPECT_GE(by_status[401], 3u);
+  EXPECT_GE(by_status[200], 4u);
+  EXPECT_EQ(by_status.count(500), 0u);
 }
 
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {
@@ -313,8 +328,8 @@ TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {
 
   // Over it: 431 before anything else is looked at (no token either), and the connection closes
   // (RawExchange returns only when the server closed it).
-  std::string big = "GET /api/echo HTTP/1.1\r\nHost: x\r\nX-Pad: " + std::string(9000, 'a') +
-                    "\r\n\r\n";
+  std::string big =
+      "GET /api/echo HTTP/1.1\r\nHost: x\r\nX-Pad: " + std::string(9000, 'a') + "\r\n\r\n";
   const std::string reply = RawExchange(port_, big);
   EXPECT_EQ(StatusOf(reply), 431) << reply.substr(0, 200);
   EXPECT_NE(reply.find("request line and headers over 8192 bytes"), std::string::npos);
@@ -350,19 +365,19 @@ TEST_F(HttpServerTest, MalformedRequestsGet400AndClose) {
 TEST_F(HttpServerTest, JsonBodiesAreCappedAt64KiB) {
   Start();
   // Exactly the limit is accepted.
-  HttpResult ok = Fetch(port_, http::verb::post, "/api/echo" + Token(), {},
-                        std::string(64 << 10, 'x'));
+  HttpResult ok =
+      Fetch(port_, http::verb::post, "/api/echo" + Token(), {}, std::string(64 << 10, 'x'));
   EXPECT_EQ(ok.status, 200);
   EXPECT_NE(ok.body.find("\"body_bytes\":65536"), std::string::npos);
   // A declared length over the limit is refused before the body is read.
-  const std::string header = "POST /api/echo" + Token() +
-                             " HTTP/1.1\r\nHost: x\r\nContent-Length: 70000\r\n\r\n";
+  const std::string header =
+      "POST /api/echo" + Token() + " HTTP/1.1\r\nHost: x\r\nContent-Length: 70000\r\n\r\n";
   std::string reply = RawExchange(port_, header);
   EXPECT_EQ(StatusOf(reply), 413) << reply;
   // A chunked body is stopped when it passes the limit.
   HttpClient client(port_);
-  std::string chunked = "POST /api/echo" + Token() +
-                        " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
+  std::string chunked =
+      "POST /api/echo" + Token() + " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
   for (int i = 0; i < 20; ++i) chunked += "1000\r\n" + std::string(4096, 'y') + "\r\n";
   chunked += "0\r\n\r\n";
   client.WriteRaw(chunked);
@@ -391,8 +406,8 @@ TEST_F(HttpServerTest, UploadsStreamThroughTheBodyReader) {
   EXPECT_TRUE(api_->upload_end()->ok()) << api_->upload_end()->ToString();
 
   // Chunked transfer encoding, in uneven chunks.
-  std::string chunked = "PUT /api/upload" + Token() +
-                        " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
+  std::string chunked =
+      "PUT /api/upload" + Token() + " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
   size_t at = 0;
   for (size_t size = 1; at < body.size(); size = size * 3 + 1) {
     const size_t n = std::min(size, body.size() - at);
@@ -423,11 +438,10 @@ TEST_F(HttpServerTest, UploadsStreamThroughTheBodyReader) {
   EXPECT_EQ(final_response.body, expected_json);
 
   // An empty body ends at once.
-  HttpResult empty = Fetch(port_, http::verb::put, "/api/upload" + Token(),
-                           {{"Content-Length", "0"}});
+  HttpResult empty =
+      Fetch(port_, http::verb::put, "/api/upload" + Token(), {{"Content-Length", "0"}});
   EXPECT_EQ(empty.status, 200);
-  EXPECT_EQ(empty.body, "{\"bytes\":0,\"fnv\":" + std::to_string(testing::Fnv1a(nullptr, 0)) +
-                            "}");
+  EXPECT_EQ(empty.body, "{\"bytes\":0,\"fnv\":" + std::to_string(testing::Fnv1a(nullptr, 0)) + "}");
 }
 
 TEST_F(HttpServerTest, UploadsOverTheLimitGet413) {
@@ -436,13 +450,14 @@ TEST_F(HttpServerTest, UploadsOverTheLimitGet413) {
   options.upload_chunk_bytes = 64 << 10;
   Start(options);
   // Declared too long: refused before reading, the handler never runs.
-  const std::string reply = RawExchange(
-      port_, "PUT /api/upload" + Token() + " HTTP/1.1\r\nHost: x\r\nContent-Length: 2097152\r\n\r\n");
+  const std::string reply =
+      RawExchange(port_, "PUT /api/upload" + Token() +
+                             " HTTP/1.1\r\nHost: x\r\nContent-Length: 2097152\r\n\r\n");
   EXPECT_EQ(StatusOf(reply), 413) << reply;
   EXPECT_TRUE(api_->seen().empty());
   // Chunked: refused when the limit is passed while reading; the handler's reader is told.
-  std::string chunked = "PUT /api/upload" + Token() +
-                        " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
+  std::string chunked =
+      "PUT /api/upload" + Token() + " HTTP/1.1\r\nHost: x\r\nTransfer-Encoding: chunked\r\n\r\n";
   for (int i = 0; i < 20; ++i) chunked += "10000\r\n" + std::string(65536, 'z') + "\r\n";
   chunked += "0\r\n\r\n";
   HttpClient client(port_);
@@ -519,6 +534,7 @@ TEST_F(HttpServerTest, KeepAliveServesSeveralRequestsPerConnection) {
   EXPECT_EQ(last.status, 200);
   EXPECT_FALSE(last.keep_alive);
   EXPECT_TRUE(client.ServerClosed());
+  client.Close();  // Else the server lingers, draining, until its linger time ends.
   EXPECT_TRUE(WaitFor([&] { return server_->open_connections() == 0; }));
 }
 

@@ -4,6 +4,8 @@
 #ifndef OCTOSCOPE_TESTS_NET_NET_TEST_CLIENT_H_
 #define OCTOSCOPE_TESTS_NET_NET_TEST_CLIENT_H_
 
+#include <unistd.h>
+
 #include <boost/asio/connect.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/ip/tcp.hpp>
@@ -21,7 +23,6 @@
 #include <string>
 #include <string_view>
 #include <thread>
-#include <unistd.h>
 #include <utility>
 #include <vector>
 
@@ -102,9 +103,8 @@ class HttpClient {
   explicit HttpClient(uint16_t port) : stream_(ioc_) {
     stream_.expires_after(kClientTimeout);
     const tcp::endpoint endpoint(asio::ip::make_address("127.0.0.1"), port);
-    connect_error_ = RunOperation(ioc_, [&](auto handler) {
-      stream_.async_connect(endpoint, std::move(handler));
-    });
+    connect_error_ = RunOperation(
+        ioc_, [&](auto handler) { stream_.async_connect(endpoint, std::move(handler)); });
   }
 
   HttpResult Request(http::verb method, std::string target,
@@ -130,9 +130,8 @@ class HttpClient {
       return result;
     }
     stream_.expires_after(kClientTimeout);
-    beast::error_code ec = RunOperation(ioc_, [&](auto handler) {
-      http::async_write(stream_, req, std::move(handler));
-    });
+    beast::error_code ec = RunOperation(
+        ioc_, [&](auto handler) { http::async_write(stream_, req, std::move(handler)); });
     if (ec) result.error = "write: " + ec.message();
     return ReadResponse(std::move(result), head);
   }
@@ -199,7 +198,8 @@ inline std::string RawExchange(uint16_t port, std::string_view request,
   beast::tcp_stream stream(ioc);
   stream.expires_after(timeout);
   const tcp::endpoint endpoint(asio::ip::make_address("127.0.0.1"), port);
-  if (RunOperation(ioc, [&](auto handler) { stream.async_connect(endpoint, std::move(handler)); })) {
+  if (RunOperation(ioc,
+                   [&](auto handler) { stream.async_connect(endpoint, std::move(handler)); })) {
     return "";
   }
   stream.expires_after(timeout);
@@ -237,7 +237,15 @@ class WsClient {
 
   // Connects and upgrades; returns the handshake error ("" when open). With a 401 answer the
   // error is Beast's "The WebSocket handshake was declined by the remote peer".
-  std::string Connect(uint16_t port, const std::string& target) {
+  // `authorization`, when given, is sent as the Authorization header of the upgrade request.
+  std::string Connect(uint16_t port, const std::string& target,
+                      const std::string& authorization = "") {
+    if (!authorization.empty()) {
+      ws_.set_option(
+          websocket::stream_base::decorator([authorization](websocket::request_type& request) {
+            request.set(http::field::authorization, authorization);
+          }));
+    }
     beast::get_lowest_layer(ws_).expires_after(kClientTimeout);
     const tcp::endpoint endpoint(asio::ip::make_address("127.0.0.1"), port);
     beast::error_code ec = RunOperation(ioc_, [&](auto handler) {
@@ -271,7 +279,7 @@ class WsClient {
   }
 
   struct Message {
-    bool ok = false;    // False: error or timeout (see error).
+    bool ok = false;  // False: error or timeout (see error).
     bool binary = false;
     std::string data;
     beast::error_code error;

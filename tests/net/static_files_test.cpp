@@ -79,9 +79,9 @@ TEST_F(ResolveTest, MapsPathsBelowTheRoot) {
 }
 
 TEST_F(ResolveTest, RefusesEverythingElse) {
-  for (const char* path : {"", "index.html", "/../secret", "/sub/../index.html", "/./index.html",
-                           "//index.html", "/sub//a.js", "/.env", "/out", "/sub", "/missing",
-                           "/sub/a.js/", "/sub\\a.js", "/\x01"}) {
+  for (const char* path :
+       {"", "index.html", "/../secret", "/sub/../index.html", "/./index.html", "//index.html",
+        "/sub//a.js", "/.env", "/out", "/sub", "/missing", "/sub/a.js/", "/sub\\a.js", "/\x01"}) {
     EXPECT_FALSE(ResolveStaticFile(root_, path).has_value()) << path;
   }
 }

@@ -98,9 +98,8 @@ class TestApi : public ApiHandler {
       std::string auth(request.Header("Authorization"));
       responder.Respond(HttpResponse::Json(
           200, "{\"method\":\"" + request.method + "\",\"path\":\"" + request.path +
-                   "\",\"query\":\"" + request.query +
-                   "\",\"body_bytes\":" + std::to_string(request.body.size()) +
-                   ",\"authorization\":\"" + auth + "\"}"));
+                   "\",\"query\":\"" + request.query + "\",\"body_bytes\":" +
+                   std::to_string(request.body.size()) + ",\"authorization\":\"" + auth + "\"}"));
     } else if (request.path == "/api/slow") {
       ++slow_started_;
       worker_.Post([release = released_, responder] {
@@ -171,9 +170,9 @@ class TestApi : public ApiHandler {
           std::lock_guard<std::mutex> lock(mu_);
           upload_end_ = Status::Ok();
         }
-        upload->responder.Respond(HttpResponse::Json(
-            200, "{\"bytes\":" + std::to_string(upload->bytes) +
-                     ",\"fnv\":" + std::to_string(upload->hash) + "}"));
+        upload->responder.Respond(
+            HttpResponse::Json(200, "{\"bytes\":" + std::to_string(upload->bytes) +
+                                        ",\"fnv\":" + std::to_string(upload->hash) + "}"));
         return;
       }
       ++upload_pieces_;
