@@ -18,12 +18,14 @@ struct Terminal {
 };
 
 // Calls `visit` for every terminal node whose level-0 box meets `box`, depth first.
-Status Walk(const Octree& tree, const Box& box, const std::function<void(const Terminal&)>& visit) {
+Status Walk(const Octree& tree, const Box& box, const std::function<void(const Terminal&)>& visit,
+            std::stop_token stop = {}) {
   const BrickGeometry& g = tree.geometry();
   const Box target = box.Intersect(g.ValidExtent(0));
   std::vector<std::byte> brick(g.brick_bytes());
   std::vector<NodeKey> stack{g.RootKey()};
   while (!stack.empty()) {
+    if (stop.stop_requested()) return CancelledError("reading voxels: cancelled");
     const NodeKey key = stack.back();
     stack.pop_back();
     const Box region = g.NodeBoxLevel0(key).Intersect(target);
@@ -97,7 +99,8 @@ Status ReadVoxels(const Octree& tree, int channel, const Box& box, std::span<uin
   });
 }
 
-Status CountVoxels(const Octree& tree, std::vector<std::vector<uint64_t>>& counts) {
+Status CountVoxels(const Octree& tree, std::vector<std::vector<uint64_t>>& counts,
+                   std::stop_token stop) {
   const BrickGeometry& g = tree.geometry();
   const size_t bins = g.bytes_per_sample() == 1 ? 256 : 65536;
   if (counts.size() != static_cast<size_t>(g.channels())) {
@@ -106,21 +109,24 @@ Status CountVoxels(const Octree& tree, std::vector<std::vector<uint64_t>>& count
   for (const auto& c : counts) {
     if (c.size() != bins) return InvalidArgumentError("count voxels: wrong number of bins");
   }
-  return Walk(tree, g.ValidExtent(0), [&](const Terminal& t) {
-    if (t.brick.empty()) {
-      // Uniform: every valid voxel of the region has the node's value.
-      const uint64_t n = t.region.VoxelCount();
-      for (int c = 0; c < g.channels(); ++c) counts[c][t.node->channels[c].min] += n;
-      return;
-    }
-    for (int64_t z = t.region.lo[2]; z < t.region.hi[2]; ++z) {
-      for (int64_t y = t.region.lo[1]; y < t.region.hi[1]; ++y) {
-        for (int64_t x = t.region.lo[0]; x < t.region.hi[0]; ++x) {
-          for (int c = 0; c < g.channels(); ++c) ++counts[c][ValueAt(g, t, {x, y, z}, c)];
+  return Walk(
+      tree, g.ValidExtent(0),
+      [&](const Terminal& t) {
+        if (t.brick.empty()) {
+          // Uniform: every valid voxel of the region has the node's value.
+          const uint64_t n = t.region.VoxelCount();
+          for (int c = 0; c < g.channels(); ++c) counts[c][t.node->channels[c].min] += n;
+          return;
         }
-      }
-    }
-  });
+        for (int64_t z = t.region.lo[2]; z < t.region.hi[2]; ++z) {
+          for (int64_t y = t.region.lo[1]; y < t.region.hi[1]; ++y) {
+            for (int64_t x = t.region.lo[0]; x < t.region.hi[0]; ++x) {
+              for (int c = 0; c < g.channels(); ++c) ++counts[c][ValueAt(g, t, {x, y, z}, c)];
+            }
+          }
+        }
+      },
+      stop);
 }
 
 }  // namespace octoscope::octree

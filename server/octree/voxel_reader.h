@@ -17,6 +17,7 @@
 
 #include <cstdint>
 #include <span>
+#include <stop_token>
 #include <vector>
 
 #include "octree/brick_geometry.h"
@@ -32,8 +33,10 @@ Status ReadVoxels(const Octree& tree, int channel, const Box& box, std::span<uin
 
 // Adds, for every valid level-0 voxel of the volume and every channel c, one count to
 // counts[c][value]. REQUIRES: counts has one vector per channel, each of 256 entries for a
-// uint8 tree and 65536 for a uint16 tree (kInvalidArgument otherwise).
-Status CountVoxels(const Octree& tree, std::vector<std::vector<uint64_t>>& counts);
+// uint8 tree and 65536 for a uint16 tree (kInvalidArgument otherwise). kCancelled (counts
+// partial) when `stop` is requested meanwhile.
+Status CountVoxels(const Octree& tree, std::vector<std::vector<uint64_t>>& counts,
+                   std::stop_token stop = {});
 
 }  // namespace octoscope::octree
 
