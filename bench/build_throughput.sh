@@ -14,16 +14,10 @@
 # OCTOSCOPE_COMPARE_BIN=/path/to/older/octoscope adds rows for that binary (same flags, without
 # --slab-planes), measured in the same run.
 set -euo pipefail
-root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
-bin="$build/octoscope"
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 compare="${OCTOSCOPE_COMPARE_BIN:-}"
 scale="${1:-1}"
-work="${OCTOSCOPE_BENCH_DIR:-$root/out/bench}"
-mkdir -p "$work"
-[ -x "$bin" ] || bash "$root/deploy/build.sh" >/dev/null
 
-now() { date +%s.%N; }
 field() { python3 -c "import json,sys; print(json.loads(sys.argv[1]).get(sys.argv[2], '-'))" "$1" "$2"; }
 
 cp_mbs() {
@@ -75,9 +69,9 @@ run_case() {
 
 z_sparse=$(awk -v s="$scale" 'BEGIN {z = int(448 * s); if (z < 8) z = 8; print z}')
 z_dense=$(awk -v s="$scale" 'BEGIN {z = int(512 * s); if (z < 8) z = 8; print z}')
-echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "load average before: $(loadavg)"
 echo "| case | size | binary | --ram-mb | planes/read | cp MB/s | build MB/s | build/cp | pool/input | peak RSS MB | RSS − budget MB | pages re-read MB |"
 echo "|---|---|---|---|---|---|---|---|---|---|---|---|"
 run_case sparse-1ch "1536,1536,$z_sparse" 1 35
 run_case dense-3ch "1024,1024,$z_dense" 3 92
-echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "load average after: $(loadavg)"

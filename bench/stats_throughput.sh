@@ -10,16 +10,11 @@
 #   OCTOSCOPE_COMPARE_BIN=/path/to/other/octoscope also times that binary (e.g. an older commit)
 #   in the same alternation and reports its ratio too.
 set -euo pipefail
-root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
-build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
-bin="$build/octoscope"
+source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 size="${1:-1024,1024,256}"
 channels="${2:-2}"
 repeats="${3:-3}"
-work="${OCTOSCOPE_BENCH_DIR:-$root/out/bench}"
-mkdir -p "$work"
 
-[ -x "$bin" ] || bash "$root/deploy/build.sh" >/dev/null
 file="$work/stats-bench.ome.tif"
 reference="$work/stats-bench.reference.json"
 if [ ! -f "$file" ] || [ ! -f "$reference" ] || [ "$(cat "$work/stats-bench.params" 2>/dev/null)" != "$size $channels" ]; then
@@ -30,8 +25,7 @@ if [ ! -f "$file" ] || [ ! -f "$reference" ] || [ "$(cat "$work/stats-bench.para
 fi
 bytes=$(stat -c %s "$file")
 
-now() { date +%s.%N; }
-load_before=$(cut -d' ' -f1-3 /proc/loadavg)  # The machine is shared: say how busy it was.
+load_before=$(loadavg)  # The machine is shared: say how busy it was.
 cat "$file" > /dev/null  # Warm the page cache once.
 compare="${OCTOSCOPE_COMPARE_BIN:-}"
 cat_s=(); stats_s=(); compare_s=()
@@ -45,7 +39,6 @@ for _ in $(seq "$repeats"); do
     compare_s+=("$(awk -v a="$t3" -v b="$t4" 'BEGIN {print b - a}')")
   fi
 done
-median() { printf '%s\n' "$@" | sort -g | awk '{a[NR]=$1} END {print a[int((NR+1)/2)]}'; }
 cat_med=$(median "${cat_s[@]}")
 stats_med=$(median "${stats_s[@]}")
 cat_mbs=$(awk -v b="$bytes" -v s="$cat_med" 'BEGIN {print b / s / 1e6}')
@@ -70,5 +63,4 @@ if [ -n "$compare" ]; then
     "$(awk -v c="$cat_med" -v s="$compare_med" 'BEGIN {print c / s}')"
 fi
 printf 'max |error| of min/max/mean vs generator: %s\n' "$error"
-printf 'load average (1, 5, 15 min): %s before, %s after\n' "$load_before" \
-  "$(cut -d' ' -f1-3 /proc/loadavg)"
+printf 'load average (1, 5, 15 min): %s before, %s after\n' "$load_before" "$(loadavg)"

@@ -4,14 +4,16 @@
 set -euo pipefail
 
 packages=(
-  build-essential cmake ninja-build pkg-config git python3
+  build-essential cmake ninja-build pkg-config git python3 curl
   libtiff-dev libzstd-dev liblzma-dev libdeflate-dev zlib1g-dev libjpeg62-turbo-dev
   libpugixml-dev nlohmann-json3-dev
+  libblosc-dev liblz4-dev libhdf5-dev
   libboost-dev
   libturbojpeg0-dev
   ocl-icd-opencl-dev opencl-c-headers opencl-clhpp-headers pocl-opencl-icd clinfo
   libgtest-dev googletest
   clang libclang-rt-14-dev
+  python3-numpy python3-zarr python3-numcodecs python3-h5py
 )
 
 # Skip apt entirely when everything is already there (fast re-runs, offline machines).

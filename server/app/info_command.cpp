@@ -44,10 +44,13 @@ void PrintHuman(const volume::VolumeInfo& info, const std::optional<io::VolumeSt
   }
   std::printf("series      %d of %d\n", info.series, info.series_count);
   std::printf("time point  %d of %d\n", info.time, info.time_points);
+  if (info.level_count > 1) std::printf("level       %d of %d\n", info.level, info.level_count);
   std::printf("bytes       %llu\n", static_cast<unsigned long long>(info.VoxelBytes()));
   for (int c = 0; c < info.channel_count(); ++c) {
-    std::printf("channel %d   %s", c,
-                info.channels[c].name.empty() ? "(unnamed)" : info.channels[c].name.c_str());
+    const volume::ChannelInfo& ch = info.channels[c];
+    std::printf("channel %d   %s", c, ch.name.empty() ? "(unnamed)" : ch.name.c_str());
+    if (ch.color) std::printf("  color #%02x%02x%02x", ch.color->r, ch.color->g, ch.color->b);
+    if (ch.window) std::printf("  window %.10g..%.10g", ch.window->start, ch.window->end);
     if (stats) {
       const io::ChannelStats& s = stats->channels[c];
       std::printf("  min %.10g  max %.10g  mean %.10g", s.min, s.max, s.mean);
@@ -61,11 +64,12 @@ void PrintHuman(const volume::VolumeInfo& info, const std::optional<io::VolumeSt
 
 int RunInfo(std::span<const std::string> args) {
   Flags flags(
-      "octoscope info INPUT [--json] [--stats] [--series N] [--time T]",
+      "octoscope info INPUT [--json] [--stats] [--series N] [--time T] [--level N]",
       "Prints what INPUT holds: format, size, channels, sample type, spacing. INPUT is an\n"
       "OME-TIFF (single file, any file of a multi-file set, or a .companion.ome), a TIFF or\n"
-      "BigTIFF stack, an ImageJ hyperstack, a folder of 2-D slices, a raw file with a .json\n"
-      "sidecar, or a Voreen .vvd. With --stats every voxel is read, slab by slab.");
+      "BigTIFF stack, an ImageJ hyperstack, a folder of 2-D slices, an OME-Zarr folder (or\n"
+      "one of its arrays), an Imaris .ims file, a raw file with a .json sidecar, or a Voreen\n"
+      ".vvd. With --stats every voxel is read, slab by slab.");
   flags.SetPositionals("INPUT", 1, 1);
   flags.AddSwitch("json", "print one JSON object (fields in docs/cli.md)");
   flags.AddSwitch("stats", "read all voxels and add per-channel min, max and mean");

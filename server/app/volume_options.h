@@ -1,6 +1,6 @@
-// Shared command-line options for opening a volume (--series, --time, --spacing), used by every
-// subcommand that takes an INPUT, and the wiring of io::OpenOptions (JSON sidecars parsed by
-// protocol/).
+// Shared command-line options for opening a volume (--series, --time, --level, --spacing,
+// --decode-threads), used by every subcommand that takes an INPUT, and the wiring of
+// io::OpenOptions (JSON sidecars and Zarr metadata parsed by protocol/).
 //
 // Thread safety: not thread-safe; used at start-up.
 #ifndef OCTOSCOPE_APP_VOLUME_OPTIONS_H_
@@ -12,8 +12,12 @@
 
 namespace octoscope::app {
 
-// Declares --series, --time and --spacing on `flags`.
+// Declares --series, --time, --level, --spacing and --decode-threads on `flags`.
 void AddVolumeFlags(Flags& flags);
+
+// OpenOptions with the defaults and the parsers protocol/ provides (JSON raw sidecars, Zarr
+// metadata): for commands that open a volume without the volume flags. No warning hook.
+io::OpenOptions DefaultOpenOptions();
 
 // Builds the OpenOptions from parsed flags. Errors name the malformed flag. The input's warnings
 // (VolumeInfo::warnings) are printed to stderr as "<command>: warning: <text>" when it is opened.

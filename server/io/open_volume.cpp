@@ -2,8 +2,10 @@
 
 #include <system_error>
 
+#include "io/ims_volume.h"
 #include "io/ome_tiff_volume.h"
 #include "io/ome_xml.h"
+#include "io/ome_zarr_volume.h"
 #include "io/raw_volume.h"
 #include "io/slice_folder_volume.h"
 #include "io/tiff_file.h"
@@ -44,11 +46,15 @@ Result<std::unique_ptr<VolumeSource>> OpenAny(const fs::path& path, const OpenOp
   std::error_code ec;
   fs::file_status status = fs::status(path, ec);
   if (ec || !fs::exists(status)) return NotFoundError(path.string() + ": no such file or folder");
+  const std::string name = path.filename().string();
+  if (LooksLikeZarr(path) || (fs::is_directory(status) && EndsWithIgnoreCase(name, ".zarr"))) {
+    return OpenOmeZarr(path, options);
+  }
   if (fs::is_directory(status)) return OpenSliceFolder(path, options);
   if (!fs::is_regular_file(status)) return UnsupportedError(path.string() + ": not a regular file");
 
   // Choose by name where the name is unambiguous, else by content.
-  const std::string name = path.filename().string();
+  if (EndsWithIgnoreCase(name, ".ims") || HasHdf5Signature(path)) return OpenImaris(path, options);
   if (EndsWithIgnoreCase(name, ".companion.ome") || EndsWithIgnoreCase(name, ".ome") ||
       EndsWithIgnoreCase(name, ".ome.xml")) {
     return OpenOmeTiff(path, options);
@@ -81,8 +87,14 @@ Result<std::unique_ptr<VolumeSource>> OpenAny(const fs::path& path, const OpenOp
 
 Result<std::unique_ptr<VolumeSource>> OpenVolume(const fs::path& path, const OpenOptions& options) {
   OCTO_ASSIGN_OR_RETURN(std::unique_ptr<VolumeSource> source, OpenAny(path, options));
+  // Single-resolution formats ignore OpenOptions::level: asking them for a coarser one is an error.
+  const volume::VolumeInfo& info = source->info();
+  if (options.level != info.level) {
+    return OutOfRangeError(path.string() + ": resolution level " + std::to_string(options.level) +
+                           " asked for, the file has " + std::to_string(info.level_count));
+  }
   if (options.on_warning) {
-    for (const std::string& warning : source->info().warnings) options.on_warning(warning);
+    for (const std::string& warning : info.warnings) options.on_warning(warning);
   }
   return source;
 }

@@ -17,7 +17,8 @@
 namespace octoscope::io {
 
 // Opens `path` with the reader its name or content calls for (docs/formats.md, "Choosing a
-// reader"); reports the opened volume's warnings through options.on_warning.
+// reader"); OutOfRange when the file has no resolution level options.level. Reports the opened
+// volume's warnings through options.on_warning.
 Result<std::unique_ptr<VolumeSource>> OpenVolume(const std::filesystem::path& path,
                                                  const OpenOptions& options);
 

@@ -31,20 +31,15 @@ std::string Num(uint64_t v) { return std::to_string(v); }
 class RawFile final : public PositionedFile {
  public:
   RawFile(int fd, std::string name) : fd_(fd), name_(std::move(name)) {}
-  ~RawFile() override {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  RawFile(const RawFile&) = delete;
-  RawFile& operator=(const RawFile&) = delete;
-  int get() const { return fd_; }
+  int get() const { return fd_.get(); }
 
   // pread keeps no shared offset, so threads don't race.
   Status ReadBytes(uint64_t offset, std::span<std::byte> out) const override {
-    return ReadFully(fd_, offset, out, name_);
+    return ReadFully(fd_.get(), offset, out, name_);
   }
 
  private:
-  const int fd_;
+  const ScopedFd fd_;
   const std::string name_;
 };
 

@@ -21,6 +21,7 @@ class WarnedSource final : public VolumeSource {
   std::optional<StoredPlane> FindStoredPlane(int channel, int64_t z) const override {
     return source_->FindStoredPlane(channel, z);
   }
+  int64_t PreferredSlabPlanes() const override { return source_->PreferredSlabPlanes(); }
 
  private:
   const std::unique_ptr<VolumeSource> source_;

@@ -1,7 +1,8 @@
 // VolumeSource: a multi-channel 3-D scan that can be read one z-slab of one channel at a time.
-// Files (OME-TIFF, TIFF stacks, slice folders, raw) and live acquisitions implement it, so the
-// octree builder consumes all of them the same way. Memory use of a read is bounded by the slab
-// the caller asks for (plus at most one decoded plane or tile row of the file), never by the file.
+// Files (OME-TIFF, TIFF stacks, slice folders, raw, OME-Zarr, Imaris) and live acquisitions
+// implement it, so the octree builder consumes all of them the same way. Memory use of a read is
+// bounded by the slab the caller asks for (plus at most one decoded plane or tile row of the file,
+// or the bounded chunk cache of a chunked format), never by the file.
 //
 // Sources whose file stores a plane exactly as ReadSlab would return it may also say where
 // (FindStoredPlane), so a caller can stream it through a small buffer of its own with positioned
@@ -64,6 +65,11 @@ class VolumeSource {
     (void)z;
     return std::nullopt;
   }
+
+  // Planes per slab at which reading is cheapest: formats stored in chunks along z (OME-Zarr,
+  // Imaris) decode whole chunks, so slabs whose z0 and nz are multiples of this decode each chunk
+  // once. 1 for formats stored plane by plane.
+  virtual int64_t PreferredSlabPlanes() const { return 1; }
 
   // Bytes of a slab of `nz` planes of one channel.
   uint64_t SlabBytes(int64_t nz) const;

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "util/target_clones.h"
+#include "util/uninitialized_bytes.h"
 
 namespace octoscope::io {
 namespace {
@@ -121,7 +122,7 @@ struct Slab {
   int channel = 0;
   int64_t z0 = 0;
   int64_t nz = 0;
-  std::vector<std::byte> data;
+  UninitializedBytes data;  // Overwritten by each read: never zero-filled.
 };
 
 // Adds the sums of `from` into `into`. Integer sums add exactly; compensated float sums add their
@@ -286,9 +287,14 @@ Result<VolumeStats> ComputeVolumeStats(VolumeSource& source, const StatsOptions&
     return ComputeDirectStats(source, options, threads);
   }
   const uint64_t plane_bytes = source.SlabBytes(1);
-  const int64_t planes_per_slab = static_cast<int64_t>(
+  int64_t planes_per_slab = static_cast<int64_t>(
       std::clamp<uint64_t>(options.slab_bytes / std::max<uint64_t>(plane_bytes, 1), 1,
                            static_cast<uint64_t>(info.size[2])));
+  // Chunked sources decode whole chunks: slabs of whole chunk depths decode each chunk once.
+  const int64_t align = source.PreferredSlabPlanes();
+  if (align > 1 && static_cast<uint64_t>(align) * plane_bytes <= options.max_aligned_slab_bytes) {
+    planes_per_slab = std::max<int64_t>(1, planes_per_slab / align) * align;
+  }
   const int channels = info.channel_count();
   const uint64_t total_planes = static_cast<uint64_t>(info.size[2]) * channels;
 

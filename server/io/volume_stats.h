@@ -2,9 +2,11 @@
 // file's own units. When the file stores the planes as they are read (VolumeSource::
 // FindStoredPlane), a few threads each read their share of the (z, c) planes piece by piece into a
 // small buffer that stays in the CPU cache while it is summed (as `cat` copies through one small
-// buffer), into their own per-channel sums, merged at the end. Otherwise the source is streamed
-// slab by slab (memory: two slabs), one thread reading while the calling thread sums. Files are
-// read, never mapped: a file truncated meanwhile gives an error naming it, not SIGBUS.
+// buffer), into their own per-channel sums, merged at the end. Otherwise (compressed or chunked
+// files: OME-Zarr, Imaris, compressed TIFF) the source is streamed slab by slab (memory: two
+// slabs; whole chunk depths for sources stored in chunks along z), one thread reading while the
+// calling thread sums. Files are read, never mapped: a file truncated meanwhile gives an error
+// naming it, not SIGBUS.
 // Integer means are exact (integer sums, one division); float means use compensated (Neumaier)
 // summation, accurate to a few units in the last place of a double. NaNs are counted, not summed.
 //
@@ -38,6 +40,10 @@ struct VolumeStats {
 struct StatsOptions {
   // Target bytes per slab read (rounded to whole planes, at least one plane).
   uint64_t slab_bytes = uint64_t{4} << 20;
+  // Sources stored in chunks along z (VolumeSource::PreferredSlabPlanes() > 1) are read in slabs
+  // of whole chunk depths when one such slab is at most this large (else the source's chunk
+  // cache serves the thinner slabs).
+  uint64_t max_aligned_slab_bytes = uint64_t{256} << 20;
   // Called after each slab with (planes done, planes total) over all channels.
   std::function<void(uint64_t, uint64_t)> progress;
   // Threads of the direct path, the calling thread included; 0: the hardware's concurrency, at

@@ -28,12 +28,24 @@ std::string InfoReportJson(const volume::VolumeInfo& info,
   j["channels"] = info.channel_count();
   nlohmann::json names = nlohmann::json::array();
   nlohmann::json colors = nlohmann::json::array();
+  nlohmann::ordered_json windows = nlohmann::ordered_json::array();
   for (const volume::ChannelInfo& c : info.channels) {
     names.push_back(c.name);
     colors.push_back(c.color ? nlohmann::json(HexColor(*c.color)) : nlohmann::json());
+    if (c.window) {
+      nlohmann::ordered_json w;
+      w["start"] = c.window->start;
+      w["end"] = c.window->end;
+      w["min"] = c.window->min ? nlohmann::ordered_json(*c.window->min) : nlohmann::ordered_json();
+      w["max"] = c.window->max ? nlohmann::ordered_json(*c.window->max) : nlohmann::ordered_json();
+      windows.push_back(std::move(w));
+    } else {
+      windows.push_back(nlohmann::ordered_json());
+    }
   }
   j["channel_names"] = names;
   j["channel_colors"] = colors;
+  j["channel_windows"] = windows;
   j["dtype"] = std::string(volume::NumpyName(info.dtype));
   j["stored_dtype"] = std::string(volume::NumpyName(volume::StoredTypeFor(info.dtype)));
   nlohmann::json spacing = nlohmann::json::array();
@@ -45,6 +57,8 @@ std::string InfoReportJson(const volume::VolumeInfo& info,
   j["series_count"] = info.series_count;
   j["time"] = info.time;
   j["time_points"] = info.time_points;
+  j["level"] = info.level;
+  j["level_count"] = info.level_count;
   j["warnings"] = info.warnings;
   if (stats) {
     nlohmann::json mins = nlohmann::json::array(), maxs = nlohmann::json::array(),

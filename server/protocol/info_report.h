@@ -13,10 +13,10 @@
 
 namespace octoscope::protocol {
 
-// One-line JSON object: format, size [x,y,z], channels, channel_names, channel_colors, dtype,
-// stored_dtype, spacing [x,y,z] (µm, null where unknown), bytes, series, series_count, time,
-// time_points, warnings (strings, [] when none); with stats also min, max, mean (one entry per
-// channel) and nan_count.
+// One-line JSON object: format, size [x,y,z], channels, channel_names, channel_colors,
+// channel_windows ({start, end, min, max} or null), dtype, stored_dtype, spacing [x,y,z] (µm, null
+// where unknown), bytes, series, series_count, time, time_points, level, level_count, warnings
+// (strings, [] when none); with stats also min, max, mean (one entry per channel) and nan_count.
 std::string InfoReportJson(const volume::VolumeInfo& info,
                            const std::optional<io::VolumeStats>& stats);
 

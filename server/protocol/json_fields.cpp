@@ -3,6 +3,7 @@
 #include <exception>
 #include <stdexcept>
 
+#include "protocol/json_parse.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -31,18 +32,10 @@ Result<json> ParseJsonObject(std::string_view text, std::string_view what, uint6
     return InvalidArgumentError(std::string(what) + ": larger than " + std::to_string(max_bytes) +
                                 " bytes");
   }
-  json doc;
-  try {
-    const json::parser_callback_t limit_depth = [max_depth](int depth, json::parse_event_t, json&) {
-      if (depth > max_depth) throw std::length_error("nested too deeply");
-      return true;
-    };
-    doc = json::parse(text.begin(), text.end(), limit_depth);
-  } catch (const std::exception& e) {
-    // e.what() names the position; it may quote the input, so it is shortened.
-    return InvalidArgumentError(std::string(what) +
-                                ": not valid JSON: " + Printable(e.what(), 200));
-  }
+  Result<json> parsed = ParseJsonLimited(text, max_depth);
+  if (!parsed.ok())
+    return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
+  json doc = std::move(*parsed);
   if (!doc.is_object()) {
     return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
   }

@@ -73,6 +73,27 @@ RenderParams DefaultRenderParams(int channel_count, volume::DataType stored_type
   return p;
 }
 
+std::array<double, 3> DefaultChannelColor(const volume::VolumeInfo& info, int channel) {
+  const int count = info.channel_count();
+  if (channel >= 0 && channel < count) {
+    if (const auto& c = info.channels[channel].color; c.has_value() && (c->r || c->g || c->b)) {
+      return {c->r / 255.0, c->g / 255.0, c->b / 255.0};
+    }
+  }
+  if (count <= 1) return {1, 1, 1};
+  if (count == 2)
+    return channel == 0 ? std::array<double, 3>{0, 1, 0} : std::array<double, 3>{1, 0, 1};
+  static constexpr std::array<std::array<double, 3>, 7> kFiji = {
+      {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}, {0, 1, 1}, {1, 0, 1}, {1, 1, 0}}};
+  return kFiji[static_cast<size_t>(channel) % kFiji.size()];
+}
+
+void SetWindow(ChannelParams& channel, double lo_stored, double hi_stored) {
+  if (!(hi_stored > lo_stored)) hi_stored = lo_stored + 1;
+  channel.window = hi_stored - lo_stored;
+  channel.level = (hi_stored + lo_stored) / 2;
+}
+
 Status ValidateRenderParams(const RenderParams& params, int channel_count) {
   if (static_cast<int64_t>(params.channels.size()) != channel_count) {
     return InvalidArgumentError("render parameters describe " +

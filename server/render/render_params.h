@@ -99,6 +99,16 @@ ChannelParams FullRangeChannel(volume::DataType stored_type);
 // `channel_count` full-range grey channels, everything else default.
 RenderParams DefaultRenderParams(int channel_count, volume::DataType stored_type, RenderMode mode);
 
+// The colour channel `channel` of `info` shows by default: the file's own colour when it names a
+// visible one, else distinct defaults the way Fiji's composite mode and napari assign them — one
+// channel grey; two green and magenta; more red, green, blue, grey, cyan, magenta, yellow
+// (repeating) — so that channels without colours never render as one white blob.
+std::array<double, 3> DefaultChannelColor(const volume::VolumeInfo& info, int channel);
+
+// Sets the channel's window so that stored values lo..hi map to t = 0..1 (auto-contrast from a
+// histogram's percentiles). hi <= lo widens to one stored unit.
+void SetWindow(ChannelParams& channel, double lo_stored, double hi_stored);
+
 // Checks the invariants above and that there is one ChannelParams per channel.
 Status ValidateRenderParams(const RenderParams& params, int channel_count);
 

@@ -9,24 +9,9 @@
 #include <cstring>
 
 namespace octoscope {
-namespace {
-
-// Owns a file descriptor opened here.
-class ScopedFd {
- public:
-  explicit ScopedFd(int fd) : fd_(fd) {}
-  ~ScopedFd() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  ScopedFd(const ScopedFd&) = delete;
-  ScopedFd& operator=(const ScopedFd&) = delete;
-  int get() const { return fd_; }
-
- private:
-  int fd_;
-};
-
-}  // namespace
+ScopedFd::~ScopedFd() {
+  if (fd_ >= 0) ::close(fd_);
+}
 
 Status ReadFully(int fd, uint64_t offset, std::span<std::byte> out,
                  std::string_view path_for_messages) {

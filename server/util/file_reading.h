@@ -18,6 +18,19 @@
 
 namespace octoscope {
 
+// Owns a file descriptor (closed on destruction; -1 holds none).
+class ScopedFd {
+ public:
+  explicit ScopedFd(int fd) : fd_(fd) {}
+  ~ScopedFd();
+  ScopedFd(const ScopedFd&) = delete;
+  ScopedFd& operator=(const ScopedFd&) = delete;
+  int get() const { return fd_; }
+
+ private:
+  int fd_;
+};
+
 // Reads exactly out.size() bytes at `offset` of the open descriptor `fd`. Errors (naming
 // `path_for_messages`): IoError when the system refuses the read, CorruptError when the file ends
 // before the buffer is full ("the file is truncated").

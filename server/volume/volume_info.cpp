@@ -39,6 +39,17 @@ Status VolumeInfo::Validate() const {
     return OutOfRangeError("time point " + std::to_string(time) + " of " +
                            std::to_string(time_points));
   }
+  if (level_count < 1 || level < 0 || level >= level_count) {
+    return OutOfRangeError("resolution level " + std::to_string(level) + " of " +
+                           std::to_string(level_count));
+  }
+  for (const ChannelInfo& c : channels) {
+    if (c.window &&
+        !(std::isfinite(c.window->start) && std::isfinite(c.window->end) &&
+          std::isfinite(c.window->min.value_or(0)) && std::isfinite(c.window->max.value_or(0)))) {
+      return CorruptError("display window of channel \"" + c.name + "\" is not finite");
+    }
+  }
   if (VoxelBytes() == UINT64_MAX) return CorruptError("volume size overflows 64 bits");
   return Status::Ok();
 }

@@ -2,7 +2,8 @@
 // channels, sample type, physical spacing, and which series/time point of the file it shows.
 //
 // Invariants (checked by Validate()): every size >= 1; 1 <= channels <= kMaxChannels; spacing,
-// where known, finite and > 0; 0 <= series < series_count; 0 <= time < time_points.
+// where known, finite and > 0; 0 <= series < series_count; 0 <= time < time_points;
+// 0 <= level < level_count; display windows, where given, finite.
 //
 // Thread safety: a plain value type.
 #ifndef OCTOSCOPE_VOLUME_VOLUME_INFO_H_
@@ -34,13 +35,25 @@ struct Rgba {
   bool operator==(const Rgba&) const = default;
 };
 
+// The display window a file recommends for a channel, in the file's own units (OME-Zarr
+// `omero.channels[].window`, Imaris `ColorRange`): values <= start show black, >= end full
+// colour. `min`/`max`: the range a window slider should span, where the file says.
+struct DisplayWindow {
+  double start = 0;
+  double end = 0;
+  std::optional<double> min, max;
+  bool operator==(const DisplayWindow&) const = default;
+};
+
 struct ChannelInfo {
-  std::string name;           // As the file names it; "" when unnamed.
-  std::optional<Rgba> color;  // As the file gives it; nullopt when none.
+  std::string name;                                    // As the file names it; "" when unnamed.
+  std::optional<Rgba> color;                           // As the file gives it; nullopt when none.
+  std::optional<DisplayWindow> window = std::nullopt;  // As the file gives it, else none.
 };
 
 struct VolumeInfo {
-  std::string format;  // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw".
+  // "ome-tiff", "imagej-tiff", "tiff", "slice-folder", "raw", "ome-zarr", "zarr", "imaris".
+  std::string format;
   std::array<int64_t, 3> size{1, 1, 1};  // Voxels along x, y, z.
   std::vector<ChannelInfo> channels;
   DataType dtype = DataType::kUint16;               // The file's sample type.
@@ -49,6 +62,8 @@ struct VolumeInfo {
   int series = 0;
   int time_points = 1;
   int time = 0;
+  int level_count = 1;  // Resolution levels the file stores (multiscale formats); 0 = finest.
+  int level = 0;
   // What the reader had to guess or ignore, one sentence each naming the file (e.g. malformed
   // OME-XML read as a plain TIFF). Empty when the file was read as it describes itself. Shown to
   // the user (stderr, `info --json` "warnings") and kept for a server to show later.
