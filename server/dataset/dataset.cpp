@@ -464,16 +464,7 @@ Status Dataset::OpenOrBuild(std::stop_token stop) {
   source.reset();
   OCTO_RETURN_IF_ERROR(WriteHistogramFile(cache_dir_, histogram_.Snapshot(), identity));
   OCTO_RETURN_IF_ERROR(building->Commit());
-  {
-    std::lock_guard lock(mu_);
-    state_ = DatasetState::kReady;
-    planes_inserted_ = total;
-    histogram_complete_ = true;
-    reserved_bytes_ = 0;
-  }
-  ApplyBudget();
-  cv_.notify_all();
-  Notify();
+  MarkReady([&] { planes_inserted_ = total; });
   return Status::Ok();
 }
 
@@ -728,20 +719,26 @@ Status Dataset::FinishLocked() {
   RefreshCounters();
   ingest_.reset();
   insert_pool_.reset();
-  {
-    std::lock_guard lock(mu_);
+  MarkReady([&] {
     finished_ = true;
-    state_ = DatasetState::kReady;
     error_.clear();
     missing_planes_ =
         static_cast<uint64_t>(info_.size[2]) * info_.channel_count() - planes_received_;
+  });
+  return Status::Ok();
+}
+
+void Dataset::MarkReady(const std::function<void()>& under_lock) {
+  {
+    std::lock_guard lock(mu_);
+    under_lock();
+    state_ = DatasetState::kReady;
     histogram_complete_ = true;
-    reserved_bytes_ = 0;
+    reserved_bytes_ = 0;  // Construction is over: the page cache gets the whole budget.
   }
   ApplyBudget();
   cv_.notify_all();
   Notify();
-  return Status::Ok();
 }
 
 void Dataset::Close() {

@@ -222,6 +222,9 @@ class Dataset {
   // Flushes the ingest and refreshes the counters. REQUIRES: add_mu_ held (shared suffices).
   Status FlushIngest();
   void RefreshCounters();
+  // State kReady with the histogram complete and no construction reserve; `under_lock` sets
+  // more fields under mu_ first. Then applies the budget and notifies.
+  void MarkReady(const std::function<void()>& under_lock);
   void SetError(const Status& status);
   void Notify();
 

@@ -66,8 +66,6 @@ class Histogram {
   // percentiles; all in file units.
   protocol::HistogramChannelDescription Describe(int c) const;
 
-  bool operator==(const Histogram&) const = default;
-
  private:
   std::vector<volume::ValueMap> maps_;
   std::vector<std::vector<uint64_t>> counts_;
