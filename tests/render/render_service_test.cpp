@@ -1349,7 +1349,7 @@ TEST(RenderServiceTest, AHugeRefinementDelaysAFullFrameByAtMostOnePass) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   // H refines a large image (each pass costs many small full frames); F, a client, sends a full
   // frame, waits for it, pauses briefly, and so on. Between F's submit and F's frame at most one
-  // of H's passes may end (the one in flight when F submitted).
+  // of H's passes may run (the one in flight when F submitted).
   auto scene = Scene(NoiseSpec({64, 64, 32}));
   ASSERT_NE(scene, nullptr);
   const Camera h_camera = Standard(*scene, StandardView::kZ, 256, 256);
@@ -1362,25 +1362,36 @@ TEST(RenderServiceTest, AHugeRefinementDelaysAFullFrameByAtMostOnePass) {
     ++h_passes;
     h_sink.Add(std::move(result));
   });
-  const ViewId f = service.Open(f_sink.Callback());
+  // H's pass count when F's frame is delivered (on the render thread: exact, whenever this test
+  // thread gets to run).
+  std::atomic<int> passes_at_f_frame = 0;
+  const ViewId f = service.Open([&, sink = f_sink.Callback()](FrameResult result) {
+    passes_at_f_frame = h_passes.load();
+    sink(std::move(result));
+  });
   FrameOptions slow = Refine();
   slow.upload.max_bricks = 2;
   ASSERT_TRUE(service->Submit(h, VolumeRequest(h_camera, slow, 1)).ok());
   int worst = 0;
   int frames = 0;
   for (uint64_t seq = 1; seq <= 40; ++seq) {
-    const int before = h_passes;
+    // Counted from just after the submit: a loaded machine may deschedule this thread between
+    // reading the count and submitting, while H's passes (rightly) go on.
     ASSERT_TRUE(service->Submit(f, VolumeRequest(f_camera, FullFrame(), seq)).ok());
+    const int before = h_passes;
     std::optional<FrameResult> frame = f_sink.WaitFinal(seq);
     ASSERT_TRUE(frame.has_value() && frame->status.ok());
-    worst = std::max(worst, h_passes - before);
+    worst = std::max(worst, passes_at_f_frame - before);
     ++frames;
     if (h_sink.WaitFinalFor(1, 0ms)) break;  // H is done: nothing left to compete with.
     std::this_thread::sleep_for(std::chrono::milliseconds(seq % 4));
   }
   std::printf("[ info     ] %d full frames, %d refinement passes, worst delay %d passes\n", frames,
               h_passes.load(), worst);
-  EXPECT_LE(worst, 1);
+  // One pass may be in flight when F submits; a second may be counted when a pass that ended
+  // just before the submit is delivered just after it (the count follows callbacks, not kernel
+  // ends). More means the scheduler let refinement run ahead of a waiting full frame.
+  EXPECT_LE(worst, 2);
   EXPECT_GE(frames, 5);
   std::optional<FrameResult> final = h_sink.WaitFinal(1);
   ASSERT_TRUE(final.has_value());
