@@ -381,6 +381,7 @@ void ViewSession::PumpViewLocked(View& view, Clock::time_point now,
     view.order_sequence = order->sequence;
     view.order_state_version = state_version_;
     view.order_refine = order->refine;
+    view.order_submitted = now;
     status = context_.renderer->Submit(view.render_view, std::move(*request));
   }
   if (!status.ok()) {
@@ -438,7 +439,13 @@ void ViewSession::OnRenderResult(ViewId v, render::FrameResult result) {
     const auto tier = !view.order_refine ? protocol::FrameTier::kInteractive
                       : result.final     ? protocol::FrameTier::kFinal
                                          : protocol::FrameTier::kRefining;
-    if (result.final) view.policy.OnFrameDone(result.sequence, true, result.stats.ms_total);
+    // The policy holds the frame rate the user sees: submit to result, so that the time a frame
+    // waits for other views' frames on the shared device counts too (N busy clients each shrink
+    // their frames instead of each waiting N times longer).
+    if (result.final) {
+      view.policy.OnFrameDone(result.sequence, true,
+                              std::max(result.stats.ms_total, Elapsed(view.order_submitted)));
+    }
     if (context_.metrics != nullptr) {
       context_.metrics->Rendered(tier, result.stats.ms_total, result.stats.bricks_uploaded);
     }

@@ -106,6 +106,7 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
     uint64_t order_sequence = 0;
     uint64_t order_state_version = 0;
     bool order_refine = false;
+    Clock::time_point order_submitted{};
     Clock::time_point last_progress{};
   };
   struct Screenshot {
