@@ -8,7 +8,8 @@
 // drags as fast as frames come), acknowledging every frame. Latency = camera sent → first frame
 // of that (or a newer) state received. At the end each client stops interacting and waits for
 // the final frame of its last camera (lossless PNG): the PSNR of its last interactive frame
-// against that final frame says what the speed costs.
+// against that final frame says what the speed costs. The first 3 s of each client are a warm-up
+// (not counted); KB/frame counts interactive frames only.
 //
 // Usage: serve_bench --binary PATH --data DIR --datasets ID[,ID] [--clients N] [--seconds S]
 //                    [--viewport WxH] [--token T] [--port P]   (the server must be running)
@@ -34,6 +35,7 @@ namespace {
 using json = nlohmann::json;
 using octoscope::net::testing::WsClient;
 using Clock = std::chrono::steady_clock;
+constexpr std::chrono::seconds kWarmUp{3};
 
 struct ClientResult {
   std::vector<double> latency_ms;
@@ -129,7 +131,7 @@ ClientResult RunClient(uint16_t port, const std::string& token, const std::strin
   uint64_t newest_version = 0;
   std::vector<uint8_t> last_interactive;
   const auto start = Clock::now();
-  const auto end = start + std::chrono::duration<double>(seconds);
+  const auto end = start + kWarmUp + std::chrono::duration<double>(seconds);
   int step = 0;
   bool waiting = false;
   Clock::time_point sent_at;
@@ -162,19 +164,24 @@ ClientResult RunClient(uint16_t port, const std::string& token, const std::strin
       break;
     }
     ws.Send(json{{"type", "ack"}, {"frame", header->frame_id}}.dump());
-    ++r.frames;
-    r.bytes += m.data.size();
+    if (header->tier == octoscope::protocol::FrameTier::kInteractive) {
+      ++r.frames;
+      r.bytes += m.data.size();
+    }
     newest_version = std::max(newest_version, header->state_version);
     if (header->tier == octoscope::protocol::FrameTier::kInteractive) {
       last_interactive.assign(bytes.begin() + octoscope::protocol::kFrameHeaderBytes, bytes.end());
     }
     if (waiting && header->state_version > version_at_send) {
-      r.latency_ms.push_back(
-          std::chrono::duration<double, std::milli>(Clock::now() - sent_at).count());
+      // The first seconds (the first frames of every client, cold caches) are a warm-up.
+      if (Clock::now() - start >= kWarmUp) {
+        r.latency_ms.push_back(
+            std::chrono::duration<double, std::milli>(Clock::now() - sent_at).count());
+      }
       waiting = false;
     }
   }
-  r.seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  r.seconds = std::chrono::duration<double>(Clock::now() - start - kWarmUp).count();
   // What the speed cost: the last interactive frame against the final one of the same state.
   ws.Send(json{{"type", "interaction"}, {"active", false}}.dump());
   const uint64_t last_version = newest_version;

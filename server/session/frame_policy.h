@@ -23,8 +23,11 @@ namespace octoscope::session {
 using Clock = std::chrono::steady_clock;
 
 struct FramePolicyOptions {
-  double target_frame_ms = 100;               // Interactive frames: render time to hold.
-  double min_scale = 0.25;                    // Interactive frames: smallest scale per axis.
+  double target_frame_ms = 100;  // Interactive frames: render time to hold.
+  double min_scale = 0.25;       // Interactive frames: smallest scale per axis.
+  // The first interactive frame's scale, before any frame time is known: a quarter of the
+  // pixels, so that a view's first frame on a busy server does not cost a full-resolution pass.
+  double initial_scale = 0.5;
   std::chrono::milliseconds idle_delay{200};  // Quiet time before refining.
 };
 
@@ -39,7 +42,8 @@ struct FrameOrder {
 
 class FramePolicy {
  public:
-  explicit FramePolicy(const FramePolicyOptions& options = {}) : options_(options) {}
+  explicit FramePolicy(const FramePolicyOptions& options = {})
+      : options_(options), scale_(options.initial_scale) {}
 
   // What the view shows changed (a new state version, or new data).
   void OnChange(uint64_t version, Clock::time_point now);

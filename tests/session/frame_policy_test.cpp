@@ -92,6 +92,8 @@ TEST_F(FramePolicyTest, ScaleFollowsTheFrameTimeTargetWithinBounds) {
   FramePolicyOptions options;
   options.target_frame_ms = 100;
   options.min_scale = 0.25;
+  EXPECT_EQ(FramePolicy(options).scale(), 0.5);  // The default first scale.
+  options.initial_scale = 1;
   FramePolicy p(options);
   uint64_t v = 0;
   auto frame = [&](double ms) {
@@ -102,7 +104,7 @@ TEST_F(FramePolicyTest, ScaleFollowsTheFrameTimeTargetWithinBounds) {
     p.OnFrameDone(o->sequence, true, ms);
     return o->scale;
   };
-  EXPECT_EQ(frame(400), 1.0);  // The first frame is at full scale.
+  EXPECT_EQ(frame(400), 1.0);  // The first frame at the initial scale.
   EXPECT_EQ(p.scale(), 0.5);   // 4x too slow: half the pixels per axis.
   for (int i = 0; i < 10; ++i) frame(400);
   EXPECT_EQ(p.scale(), 0.25);  // Never below the minimum.
