@@ -162,9 +162,11 @@ export class ChannelsPanel {
   // Auto-contrast channel i from its histogram (all voxels counted so far).
   autoContrast(i) {
     const h = this.histChannel(i);
-    if (!h) return false;
-    const w = autoContrast(h, this.map(i));
-    if (!w) return false;
+    const w = h && h.count !== 0 ? autoContrast(h, this.map(i)) : null;
+    if (!w) {
+      this.onNotice?.(`Auto-contrast: no voxels of channel ${i + 1} counted yet`);
+      return false;
+    }
     this.onChange(i, {window: round4(w.window), level: round4(w.level)}, false);
     return true;
   }

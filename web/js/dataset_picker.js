@@ -2,8 +2,6 @@
 // and state (a building or streaming dataset shows its progress, refreshed every 2 s while the
 // picker is open); choosing one calls onPick(id).
 
-import {formatLength} from './scale_bar.js';
-
 export function describeSize(d) {
   const [x, y, z] = d.size;
   const bytes = x * y * z * d.channels * (d.dtype.endsWith('8') ? 1 : d.dtype.endsWith('16') ? 2 :
@@ -73,7 +71,7 @@ export class DatasetPicker {
         describeSize(d),
         `${d.channels}${d.channel_names?.some(Boolean) ? ' (' + d.channel_names.join(', ') + ')' : ''}`,
         d.dtype,
-        d.spacing.map((s) => formatLength(s)).join(' × '),
+        `${d.spacing.map((s) => Number(s.toPrecision(4))).join(' × ')} µm`,
         describeState(d),
       ];
       for (const c of cells) {

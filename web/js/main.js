@@ -73,6 +73,7 @@ class App {
     }
     this.channels = new ChannelsPanel(document.querySelector('#channels'),
         (i, doc, interactive) => this.changeChannel(i, doc, interactive));
+    this.channels.onNotice = (text) => this.status.error(text);
     this.renderPanel = new RenderPanel(document.querySelector('#render-panel'), {
       onMode: (m) => this.changeParams({mode: m}),
       onProjection: (p) => this.setProjection(p),
@@ -166,7 +167,7 @@ class App {
         // The event carries the dataset's JSON, either as "dataset" or at its top level.
         const d = msg.dataset && typeof msg.dataset === 'object' ? msg.dataset : msg;
         if (this.dataset && d.id === this.dataset.id) {
-          const grew = d.planes_inserted !== this.dataset.planes_inserted;
+          const grew = d.planes_inserted !== this.dataset.planes_inserted || d.state !== this.dataset.state;
           this.dataset = {...this.dataset, ...d};
           this.status.dataset(this.dataset);
           if (grew) this.refreshHistogram(false);
@@ -223,9 +224,21 @@ class App {
     this.drawOverlays();
   }
 
+  // Fetches the histogram now (force) or at most every HISTOGRAM_REFRESH_MS while the data
+  // grows, the last growth always followed by one fetch (trailing edge).
   async refreshHistogram(force) {
     const now = performance.now();
-    if (!force && now - this.lastHistogramFetch < HISTOGRAM_REFRESH_MS) return;
+    if (!force && now - this.lastHistogramFetch < HISTOGRAM_REFRESH_MS) {
+      if (!this.histogramTimer) {
+        this.histogramTimer = setTimeout(() => {
+          this.histogramTimer = null;
+          this.refreshHistogram(true);
+        }, HISTOGRAM_REFRESH_MS - (now - this.lastHistogramFetch));
+      }
+      return;
+    }
+    clearTimeout(this.histogramTimer);
+    this.histogramTimer = null;
     this.lastHistogramFetch = now;
     const id = this.datasetId;
     try {
