@@ -4,7 +4,7 @@
 set -euo pipefail
 
 packages=(
-  build-essential cmake ninja-build pkg-config git python3
+  build-essential cmake ninja-build pkg-config git python3 curl
   libtiff-dev libzstd-dev liblzma-dev libdeflate-dev zlib1g-dev libjpeg62-turbo-dev
   libpugixml-dev nlohmann-json3-dev
   libblosc-dev liblz4-dev libhdf5-dev

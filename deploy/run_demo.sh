@@ -1,21 +1,16 @@
 #!/usr/bin/env bash
-# One command from a fresh Debian 12 machine: install what is needed, build, write the built-in
-# demo specimen (a synthetic 3-channel fluorescent embryo, OME-TIFF), read it back slab by slab
-# (metadata and per-channel statistics), build its multi-resolution octree cache and render it
-# (OpenCL ray casting: a DVR view and a MIP view, PNG) with the colours of deploy/demo_params.json.
-# Usage: bash deploy/run_demo.sh [--size X,Y,Z]   (default 256,256,128)
+# One command from a fresh Debian 12 machine: install what is needed, build, and start the viewer
+# server on the built-in demo specimen (a synthetic 3-channel fluorescent embryo, written once
+# into the cache and streamed in plane by plane like an acquisition). Prints the URL to open in a
+# browser (the access token included); Ctrl-C stops the server.
+# Usage: bash deploy/run_demo.sh [octoscope serve options, e.g. --port 0 --demo-rate 20]
+#   OCTOSCOPE_CACHE_DIR: the cache folder (default out/serve-cache in the checkout).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 bash "$root/deploy/install_deps.sh"
 bash "$root/deploy/build.sh"
 build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
-demo_dir="${OCTOSCOPE_DEMO_DIR:-$root/out/demo}"
-demo=$("$build/octoscope" demo --out "$demo_dir" "$@")
-echo "demo specimen: $demo"
-"$build/octoscope" info --stats "$demo"
-"$build/octoscope" build "$demo" --cache "$demo_dir/cache"
-for mode in dvr mip; do
-  "$build/octoscope" render "$demo_dir/cache" --out "$demo_dir/demo-$mode.png" --size 512x512 \
-    --view iso --mode "$mode" --params "$root/deploy/demo_params.json" --refine --stats-json
-done
-echo "images: $demo_dir/demo-dvr.png $demo_dir/demo-mip.png"
+cache="${OCTOSCOPE_CACHE_DIR:-$root/out/serve-cache}"
+mkdir -p "$cache"
+echo "starting octoscope serve --demo (open the URL below in a browser; Ctrl-C stops it)" >&2
+exec "$build/octoscope" serve --demo --cache "$cache" --web "$root/web" "$@"

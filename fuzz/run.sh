@@ -2,7 +2,8 @@
 # Fuzzes one harness with libFuzzer for a bounded time.
 # Usage: bash fuzz/run.sh [SECONDS=120] [JOBS=1] [HARNESS=tiff_ome_fuzzer]
 #   HARNESS: tiff_ome_fuzzer (TIFF + OME-XML), zarr_metadata_fuzzer, chunk_codec_fuzzer,
-#   zarr_store_fuzzer (OME-Zarr; input formats in fuzz/zarr_fuzz_inputs.h).
+#   zarr_store_fuzzer (OME-Zarr; input formats in fuzz/zarr_fuzz_inputs.h), dataset_json_fuzzer
+#   (stream requests and watch sidecars; seeds in fuzz/seeds-json).
 # Builds with clang (+ASan/UBSan, libFuzzer coverage) into build-fuzz/. The TIFF harness seeds
 # from fuzz/seeds and fuzz/regressions (plus small files of ../shared/testdata when present), the
 # Zarr harnesses from fuzz/zarr/seeds/NAME and fuzz/zarr/regressions/NAME (NAME = the harness
@@ -26,6 +27,8 @@ corpus="$root/fuzz/corpus-run/$harness"
 mkdir -p "$corpus" "$root/fuzz/crashes"
 if [ "$harness" = tiff_ome_fuzzer ]; then
   seeds=("$root/fuzz/seeds" "$root/fuzz/regressions")
+elif [ "$harness" = dataset_json_fuzzer ]; then
+  seeds=("$root/fuzz/seeds-json")
 else
   name="${harness%_fuzzer}"
   mkdir -p "$root/fuzz/zarr/regressions/$name"

@@ -1,7 +1,7 @@
 // `octoscope bench render`: speed against error of the OpenCL renderer (docs/benchmarks.md,
 // "Rendering"). Renders fixed views of a volume over a sweep of settings, compares every image
 // with the double-precision CPU reference renderer, and measures the kernels against the
-// hand-written multi-threaded C++ loop (render/cpu_raycaster.h) in the same run.
+// hand-written multi-threaded C++ loop (bench/baseline/cpu_raycaster.h) in the same run.
 //
 // Flow: load the volume into RAM as stored uint16 (the C++ loop's input), build its octree in
 // memory (the renderer's input), render the reference images ONCE per (view, mode, size) — at
@@ -37,6 +37,7 @@
 #include "app/commands.h"
 #include "app/flags.h"
 #include "app/volume_options.h"
+#include "baseline/cpu_raycaster.h"
 #include "io/open_volume.h"
 #include "io/synthetic_embryo.h"
 #include "octree/octree.h"
@@ -44,7 +45,6 @@
 #include "paging/page_cache.h"
 #include "protocol/render_bench_report.h"
 #include "render/camera.h"
-#include "render/cpu_raycaster.h"
 #include "render/device.h"
 #include "render/device_octree.h"
 #include "render/program_cache.h"
@@ -536,7 +536,7 @@ struct KernelVsLoop {
 // Headline (a): the kernels at level 0 with everything the view needs resident (made so by a
 // refinement, then full frames until none requests anything), against the C++ loop, same view,
 // size and step. Medians of `repeats` frames each.
-Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const render::CpuRaycaster& loop,
+Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const bench::CpuRaycaster& loop,
                                          RenderMode mode, int size, int repeats) {
   KernelVsLoop k;
   const RenderParams params = b.loaded->Params(mode, 1);
@@ -574,7 +574,7 @@ Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const render::CpuRaycas
   std::vector<double> loop_ms;
   RenderImage loop_image;
   for (int i = 0; i < repeats; ++i) {
-    render::CpuRaycastStats loop_stats;
+    bench::CpuRaycastStats loop_stats;
     OCTO_ASSIGN_OR_RETURN(loop_image, loop.Render(camera, params, 0, &loop_stats));
     loop_ms.push_back(loop_stats.ms);
     k.loop_samples = loop_stats.samples;
@@ -746,8 +746,7 @@ int RunBenchRender(std::span<const std::string> args) {
                  "256; 24 with --quick");
   flags.AddValue("reference-step", "S", "step of the reference images, voxels", "0.5");
   flags.AddValue("brick", "N", "octree brick size, even", "64; 16 with --quick");
-  flags.AddValue("threshold", "F",
-                 "LOSSY homogeneity threshold (fraction of each channel's range)",
+  flags.AddValue("threshold", "F", "LOSSY homogeneity threshold (fraction of each channel's range)",
                  "0: lossless, as octoscope build");
   flags.AddValue("repeats", "N", "frames timed for the headline ratios (median)", "3");
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
@@ -857,8 +856,8 @@ int RunBenchRender(std::span<const std::string> args) {
     voxels.emplace_back(ch.begin(), ch.end());
   }
   loaded->volume.reset();
-  auto loop = render::CpuRaycaster::Create(loaded->info.size, spacing, loaded->stored_type,
-                                           std::move(voxels));
+  auto loop = bench::CpuRaycaster::Create(loaded->info.size, spacing, loaded->stored_type,
+                                          std::move(voxels));
   if (!loop.ok()) return Fail(loop.status().ToString());
 
   // Large buffer: every brick of the tree (+ slack); small: an eighth of that (at least the
@@ -941,7 +940,7 @@ int RunBenchRender(std::span<const std::string> args) {
     }
     std::fprintf(stderr, "bench: C++ loop, mip %d² ...\n", big);
     auto camera = ViewCamera("iso", box, big);
-    render::CpuRaycastStats loop_stats;
+    bench::CpuRaycastStats loop_stats;
     auto image = camera.ok()
                      ? loop->Render(*camera, loaded->Params(RenderMode::kMip, 1), 0, &loop_stats)
                      : Result<RenderImage>(camera.status());

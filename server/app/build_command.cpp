@@ -13,6 +13,7 @@
 #include "app/commands.h"
 #include "app/octree_loading.h"
 #include "app/volume_options.h"
+#include "dataset/cache_setup.h"
 #include "io/open_volume.h"
 #include "octree/octree_builder.h"
 #include "octree/octree_cache.h"
@@ -121,9 +122,9 @@ int RunBuild(std::span<const std::string> args) {
   auto identity = octree::ComputeSourceIdentity(input);
   if (!identity.ok()) return Fail(input, identity.status());
 
-  brick = BrickSizeFor(info, brick);
+  brick = dataset::BrickSizeFor(info, brick);
   const uint64_t ram_bytes = static_cast<uint64_t>(*ram_mb) << 20;
-  const octree::BuildBudget budget = BuildBudgetFor(info, brick, ram_bytes);
+  const octree::BuildBudget budget = dataset::BuildBudgetFor(info, brick, ram_bytes);
 
   octree::CacheParams params;
   params.info = info;

@@ -61,6 +61,7 @@ Status Flags::Parse(std::span<const std::string> args) {
       } else {
         return InvalidArgumentError("--" + name + " needs a value (" + it->second.value_name + ")");
       }
+      all_values_[name].push_back(values_[name]);
       continue;
     }
     positionals_.push_back(arg);
@@ -91,6 +92,11 @@ std::string Flags::Help() const {
 }
 
 bool Flags::Has(const std::string& name) const { return values_.count(name) != 0; }
+
+std::vector<std::string> Flags::GetAll(const std::string& name) const {
+  auto it = all_values_.find(name);
+  return it == all_values_.end() ? std::vector<std::string>{} : it->second;
+}
 
 std::optional<std::string> Flags::Get(const std::string& name) const {
   auto it = values_.find(name);

@@ -39,7 +39,9 @@ class Flags {
   std::string Help() const;
 
   bool Has(const std::string& name) const;  // Given on the command line.
+  // The last value given (a flag given twice keeps the last), or every value in order.
   std::optional<std::string> Get(const std::string& name) const;
+  std::vector<std::string> GetAll(const std::string& name) const;
   // Typed getters: `fallback` when absent, an error naming the flag when malformed.
   Result<int64_t> GetInt(const std::string& name, int64_t fallback, int64_t min, int64_t max) const;
   Result<double> GetDouble(const std::string& name, double fallback) const;
@@ -62,6 +64,7 @@ class Flags {
   int max_positionals_ = 0;
   bool help_ = false;
   std::map<std::string, std::string> values_;
+  std::map<std::string, std::vector<std::string>> all_values_;
   std::vector<std::string> positionals_;
 };
 

@@ -25,6 +25,8 @@ constexpr Command kCommands[] = {
      octoscope::app::RunDemo},
     {"render", "render one image of a scan or an octree cache (OpenCL ray casting) to PNG/JPEG",
      octoscope::app::RunRender},
+    {"serve", "the viewer server: browser clients, datasets, live streaming (prints the URL)",
+     octoscope::app::RunServe},
     {"bench", "benchmarks: 'bench render' measures speed against error of the renderer",
      octoscope::app::RunBench},
 };

@@ -8,6 +8,7 @@
 #include <system_error>
 
 #include "app/commands.h"
+#include "dataset/cache_setup.h"
 #include "io/open_volume.h"
 #include "io/volume_stats.h"
 #include "octree/brick_geometry.h"
@@ -21,12 +22,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// The files of a cache directory (octree/octree_cache.h).
-constexpr const char* kManifestFile = "MANIFEST";
-constexpr const char* kBuildingFile = "BUILDING";
-constexpr const char* kLockFile = "LOCK";
-constexpr uint64_t kMaxManifestBytes = uint64_t{1} << 20;
-
 void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info) {
   for (int a = 0; a < 3; ++a) {
     if (open.spacing_um[a]) info.spacing_um[a] = open.spacing_um[a];
@@ -34,18 +29,6 @@ void ApplySpacingOverrides(const io::OpenOptions& open, volume::VolumeInfo& info
 }
 
 }  // namespace
-
-octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& requested) {
-  if (requested != octree::Vec3{0, 0, 0}) return requested;
-  return octree::AutoBrickSize(octree::Vec3{info.size[0], info.size[1], info.size[2]});
-}
-
-octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
-                                   uint64_t ram_bytes) {
-  const volume::DataType stored = volume::StoredTypeFor(info.dtype);
-  return octree::SplitBuildBudget(info, brick_size,
-                                  static_cast<int>(volume::BytesPerSample(stored)), ram_bytes);
-}
 
 Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
                          octree::Octree& tree, const BuildRun& run) {
@@ -92,84 +75,29 @@ int ReportBadInput(const char* command, const std::string& input, const Status& 
 
 Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold) {
   const volume::VolumeInfo& info = source.info();
-  octree::ValueMapping mapping;
-  const bool narrow = volume::BytesPerSample(info.dtype) <= 2;
-  std::optional<io::VolumeStats> stats;
-  if (!narrow || threshold > 0) {
-    ProgressBar bar(stderr, "planes (value range)",
-                    static_cast<uint64_t>(info.size[2]) * info.channel_count(),
-                    static_cast<double>(source.SlabBytes(1)));
-    io::StatsOptions options;
-    options.progress = [&bar](uint64_t done, uint64_t) { bar.Update(done); };
-    auto computed = io::ComputeVolumeStats(source, options);
-    bar.Finish();
-    if (!computed.ok()) return computed.status();
-    stats = std::move(*computed);
-  }
-  for (int c = 0; c < info.channel_count(); ++c) {
-    volume::ValueMap map = volume::FixedValueMap(
-        info.dtype == volume::DataType::kUint8 || info.dtype == volume::DataType::kInt8 || narrow
-            ? info.dtype
-            : volume::DataType::kUint16);
-    if (!narrow) {
-      const io::ChannelStats& s = stats->channels[c];
-      const double lo = s.count ? s.min : 0, hi = s.count ? s.max : 0;
-      OCTO_ASSIGN_OR_RETURN(map, volume::ValueMapForRange(info.dtype, lo, hi));
+  std::optional<ProgressBar> bar;
+  auto progress = [&](uint64_t done, uint64_t) {
+    if (!bar) {
+      bar.emplace(stderr, "planes (value range)",
+                  static_cast<uint64_t>(info.size[2]) * info.channel_count(),
+                  static_cast<double>(source.SlabBytes(1)));
     }
-    uint32_t range = static_cast<uint32_t>(volume::TypeMax(map.stored_type));
-    if (stats && stats->channels[c].count > 0) {
-      // The channel's data range in stored units: what "5 % of the range" means.
-      range = static_cast<uint32_t>(map.ToStored(stats->channels[c].max) -
-                                    map.ToStored(stats->channels[c].min));
-    }
-    mapping.value_maps.push_back(map);
-    mapping.value_range.push_back(range);
-  }
+    bar->Update(done);
+  };
+  auto mapping = dataset::DeriveMapping(source, threshold, progress);
+  if (bar) bar->Finish();
   return mapping;
 }
 
-bool IsCacheDirectory(const fs::path& path) {
-  std::error_code ec;
-  if (!fs::is_directory(path, ec)) return false;
-  // A cache being built (or whose build was killed) has no MANIFEST yet, but its markers.
-  for (const char* name : {kManifestFile, kBuildingFile, kLockFile}) {
-    if (fs::is_regular_file(path / name, ec)) return true;
-  }
-  return false;
-}
-
 Result<std::unique_ptr<LoadedOctree>> OpenCacheDirectory(const fs::path& dir, uint64_t ram_bytes) {
-  // While another process builds into the directory its MANIFEST is missing: say that, not "no
-  // MANIFEST". (OctreeCache::Open below takes its own lock; this one is only the first look.)
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<octree::CacheLock> first_look,
-                        octree::CacheLock::Acquire(dir, octree::CacheLock::Mode::kShared));
-  std::error_code ec;
-  if (!fs::exists(dir / kManifestFile, ec)) {
-    return CorruptError(dir.string() +
-                        ": the cache is incomplete (its build was interrupted); rebuild it from "
-                        "the scan (octoscope build SCAN --cache DIR)");
-  }
-  OCTO_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(dir / kManifestFile, kMaxManifestBytes));
-  auto manifest = octree::CacheManifest::Parse(text);
-  if (!manifest.ok()) {
-    return CorruptError((dir / kManifestFile).string() + ": " + manifest.status().message());
-  }
-  // Opening with the manifest's own source and parameters reuses the cache; should it still be
-  // unusable (damaged files), `derive` refuses before anything is cleared.
-  auto cache = octree::OctreeCache::Open(
-      dir, manifest->source, manifest->params, ram_bytes, [&dir]() -> Result<octree::ValueMapping> {
-        return CorruptError(dir.string() +
-                            ": the cache is incomplete or damaged; rebuild it from the scan "
-                            "(octoscope build SCAN --cache DIR)");
-      });
-  if (!cache.ok()) return cache.status();
+  OCTO_ASSIGN_OR_RETURN(dataset::OpenedCache opened, dataset::OpenCompleteCache(dir, ram_bytes));
   auto loaded = std::make_unique<LoadedOctree>();
-  loaded->info = manifest->params.info;
-  loaded->value_maps = (*cache)->mapping().value_maps;
+  loaded->info = opened.manifest.params.info;
+  loaded->value_maps = opened.cache->mapping().value_maps;
   loaded->source = "cache";
   loaded->cache_dir = dir;
   loaded->reused = true;
-  loaded->cache = std::move(*cache);
+  loaded->cache = std::move(opened.cache);
   return loaded;
 }
 
@@ -193,7 +121,7 @@ Result<uint64_t> MaxPoolBytes(const volume::VolumeInfo& info, const octree::Vec3
 Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
                                                  const OctreeLoadOptions& options) {
   // Route 1: a cache directory.
-  if (IsCacheDirectory(input)) {
+  if (dataset::IsCacheDirectory(input)) {
     OCTO_ASSIGN_OR_RETURN(auto loaded, OpenCacheDirectory(input, options.ram_bytes));
     ApplySpacingOverrides(options.open, loaded->info);
     return loaded;
@@ -208,9 +136,10 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
     OCTO_ASSIGN_OR_RETURN(octree::SourceIdentity identity, octree::ComputeSourceIdentity(input));
     octree::CacheParams params;
     params.info = info;
-    params.brick_size = BrickSizeFor(info, options.brick_size);
+    params.brick_size = dataset::BrickSizeFor(info, options.brick_size);
     params.threshold = options.threshold;
-    const octree::BuildBudget budget = BuildBudgetFor(info, params.brick_size, options.ram_bytes);
+    const octree::BuildBudget budget =
+        dataset::BuildBudgetFor(info, params.brick_size, options.ram_bytes);
     OCTO_ASSIGN_OR_RETURN(
         loaded->cache,
         octree::OctreeCache::Open(options.cache_dir, identity, params, budget.page_bytes,
@@ -233,9 +162,9 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
   }
 
   // Route 3: in RAM, when the bricks fit the page budget.
-  const octree::Vec3 brick_size = BrickSizeFor(info, options.brick_size);
+  const octree::Vec3 brick_size = dataset::BrickSizeFor(info, options.brick_size);
   OCTO_ASSIGN_OR_RETURN(uint64_t pool_bytes, MaxPoolBytes(info, brick_size));
-  const octree::BuildBudget budget = BuildBudgetFor(info, brick_size, options.ram_bytes);
+  const octree::BuildBudget budget = dataset::BuildBudgetFor(info, brick_size, options.ram_bytes);
   const uint64_t page_budget = budget.page_bytes;
   if (pool_bytes > page_budget) {
     return ResourceExhaustedError(

@@ -2,8 +2,9 @@
 // mapping a build derives from the data, the default RAM budget, and the three ways to get an
 // octree for an INPUT:
 //  1. INPUT is a cache directory (it holds a MANIFEST, or the marks of a build: see
-//     IsCacheDirectory): it is opened as it is, with the scan and parameters its manifest records
-//     (the scan itself is not needed); one another process is building is refused (kUnavailable);
+//     dataset::IsCacheDirectory): it is opened as it is, with the scan and parameters its manifest
+//     records (the scan itself is not needed); one another process is building is refused
+//     (kUnavailable);
 //  2. INPUT is a scan and a cache directory is given: OctreeCache reuses a complete matching
 //     cache there or builds into it (durable, reused by the next run);
 //  3. INPUT is a scan and no cache directory: the octree is built in RAM
@@ -46,16 +47,8 @@ int64_t DefaultRamMb();
 // kExitBadInput. The input path is added when the message does not name the file already.
 int ReportBadInput(const char* command, const std::string& input, const Status& status);
 
-// The value mapping a build needs: for 8/16-bit data the fixed maps, plus (when the threshold is
-// a fraction of the data's range, or the type is wider) one statistics pass over the data.
+// dataset::DeriveMapping with a progress bar on stderr while the statistics pass runs.
 Result<octree::ValueMapping> DeriveMapping(io::VolumeSource& source, double threshold);
-
-// `requested`, or the volume's automatic brick size when it is {0, 0, 0}.
-octree::Vec3 BrickSizeFor(const volume::VolumeInfo& info, const octree::Vec3& requested);
-
-// The build budget split (octree::SplitBuildBudget) for `info` in bricks of `brick_size`.
-octree::BuildBudget BuildBudgetFor(const volume::VolumeInfo& info, const octree::Vec3& brick_size,
-                                   uint64_t ram_bytes);
 
 // One build of a source into an octree, as the commands run it.
 struct BuildRun {
@@ -70,10 +63,6 @@ struct BuildRun {
 // Streams the whole source into `tree` (octree::BuildOctree).
 Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::ValueMap>& maps,
                          octree::Octree& tree, const BuildRun& run);
-
-// True when `path` is a directory holding a cache MANIFEST, or the BUILDING or LOCK file of a
-// cache being built (or whose build was interrupted).
-bool IsCacheDirectory(const std::filesystem::path& path);
 
 struct OctreeLoadOptions {
   io::OpenOptions open;             // For a scan INPUT.

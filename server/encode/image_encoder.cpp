@@ -113,6 +113,13 @@ Status ValidateImage(const Rgba8Image& image) {
 
 Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height, AlphaMode mode) {
   Rgba8Image image;
+  ToRgba8Into(rgba_premultiplied, width, height, mode, &image);
+  return image;
+}
+
+void ToRgba8Into(const float* rgba_premultiplied, int width, int height, AlphaMode mode,
+                 Rgba8Image* out) {
+  Rgba8Image& image = *out;
   image.width = width;
   image.height = height;
   const size_t count = static_cast<size_t>(std::max(width, 0)) * std::max(height, 0) * 4;
@@ -126,7 +133,6 @@ Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height, Alpha
     for (int k = 0; k < 3; ++k) image.pixels[i + k] = ToByte(p[k] * scale);
     image.pixels[i + 3] = ToByte(alpha);
   }
-  return image;
 }
 
 Result<std::vector<uint8_t>> EncodePng(const Rgba8Image& image) {

@@ -42,6 +42,9 @@ enum class AlphaMode { kStraight, kOverBlack };
 // Converts `width` x `height` premultiplied RGBA float pixels (4 floats each) as described above.
 // REQUIRES: width, height >= 0; rgba_premultiplied points at width * height * 4 floats.
 Rgba8Image ToRgba8(const float* rgba_premultiplied, int width, int height, AlphaMode mode);
+// The same into `out`, reusing its pixel buffer (no allocation once it is large enough).
+void ToRgba8Into(const float* rgba_premultiplied, int width, int height, AlphaMode mode,
+                 Rgba8Image* out);
 
 // A PNG file (RGBA, 8 bits per sample, non-interlaced; per row the filter among the five PNG
 // filters with the smallest sum of absolute residuals; zlib-compressed IDAT chunks of at most

@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "io/slice_names.h"
 #include "io/spacing.h"
 #include "io/tiff_file.h"
 #include "io/tiff_file_cache.h"
@@ -26,13 +27,6 @@ struct FolderChannel {
   std::string name;
   std::vector<std::filesystem::path> files;
 };
-
-bool IsDigit(char c) { return c >= '0' && c <= '9'; }
-bool IsLetter(char c) { return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z'); }
-
-bool IsTiffName(const std::string& name) {
-  return EndsWithIgnoreCase(name, ".tif") || EndsWithIgnoreCase(name, ".tiff");
-}
 
 // The visible TIFF files and sub-folders directly inside `dir`.
 struct Listing {
@@ -65,50 +59,13 @@ Result<Listing> ListFolder(const std::filesystem::path& dir) {
   return listing;
 }
 
-// A file stem split into maximal runs of digits and of non-digits.
-struct Token {
-  std::string text;
-  bool digits = false;
-};
-
-std::vector<Token> Tokenize(std::string_view stem) {
-  std::vector<Token> tokens;
-  for (char c : stem) {
-    if (tokens.empty() || tokens.back().digits != IsDigit(c)) tokens.push_back({"", IsDigit(c)});
-    tokens.back().text += c;
-  }
-  return tokens;
-}
-
-// The channel marker ("c", "ch", "channel", "w", any case) that `token` ends with, as spelled in
-// the file, when it starts the token or follows a non-letter; "" otherwise.
-std::string ChannelMarker(const std::string& token) {
-  for (std::string_view marker : {"channel", "ch", "c", "w"}) {
-    if (!EndsWithIgnoreCase(token, marker)) continue;
-    const size_t start = token.size() - marker.size();
-    if (start > 0 && IsLetter(token[start - 1])) continue;
-    return token.substr(start);
-  }
-  return "";
-}
-
-// Numeric value of a digit run, saturating (only compared, never used as a size).
-uint64_t DigitValue(const std::string& digits) {
-  uint64_t v = 0;
-  for (char c : digits) {
-    v = CheckedAdd(CheckedMul(v, 10).value_or(UINT64_MAX), static_cast<uint64_t>(c - '0'))
-            .value_or(UINT64_MAX);
-  }
-  return v;
-}
-
 // Tries token position `p` as the channel token of `files` (whose stems are `tokens`). Returns
 // nullopt when the token does not number channels: it takes a single value, or every value names
 // a single file (then it numbers the slices). Errors when it numbers channels whose names do not
 // line up: every channel must hold the same names once the token is blanked out.
 Result<std::optional<std::vector<FolderChannel>>> GroupByToken(
     const std::filesystem::path& dir, const std::vector<std::filesystem::path>& files,
-    const std::vector<std::vector<Token>>& tokens, size_t p) {
+    const std::vector<std::vector<NameToken>>& tokens, size_t p) {
   using Grouping = std::optional<std::vector<FolderChannel>>;
   // value -> (key -> file); key is the stem with token p replaced by a placeholder.
   std::map<uint64_t, std::map<std::string, std::filesystem::path>> groups;
@@ -167,13 +124,13 @@ Result<std::optional<std::vector<FolderChannel>>> GroupByToken(
 // (see slice_folder_volume.h), or returns them as one unnamed channel.
 Result<std::vector<FolderChannel>> SplitFlatFolder(
     const std::filesystem::path& dir, const std::vector<std::filesystem::path>& files) {
-  std::vector<std::vector<Token>> tokens;
-  for (const auto& f : files) tokens.push_back(Tokenize(f.stem().string()));
+  std::vector<std::vector<NameToken>> tokens;
+  for (const auto& f : files) tokens.push_back(TokenizeName(f.stem().string()));
   std::vector<std::vector<FolderChannel>> found;
   std::vector<std::string> found_tokens;
   const size_t n = tokens[0].size();
   const bool uniform = std::all_of(tokens.begin(), tokens.end(),
-                                   [n](const std::vector<Token>& t) { return t.size() == n; });
+                                   [n](const std::vector<NameToken>& t) { return t.size() == n; });
   for (size_t p = 1; uniform && p < n; ++p) {
     bool candidate = true;
     for (const auto& t : tokens) {
@@ -206,14 +163,6 @@ std::array<std::optional<double>, 3> SpacingFromSlice(const TiffIfd& ifd,
                                                       std::string_view description) {
   const std::optional<ImageJDescription> ij = ParseImageJDescription(description);
   return TiffPageSpacing(ifd, ij ? &*ij : nullptr);
-}
-
-std::string DescribeSlice(const TiffIfd& ifd) {
-  return std::to_string(ifd.width) + "x" + std::to_string(ifd.height) + " " +
-         (ifd.dtype ? std::string(volume::NumpyName(*ifd.dtype)) : std::string("undecodable")) +
-         (ifd.samples_per_pixel > 1
-              ? " with " + std::to_string(ifd.samples_per_pixel) + " samples per pixel"
-              : std::string());
 }
 
 // The one full-resolution IFD of a slice file (reduced-resolution copies such as thumbnails are
@@ -348,9 +297,9 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
         // The index keeps IFD 0's description only; a slice after a thumbnail is read here.
         OCTO_ASSIGN_OR_RETURN(first_description, file->Description(*index));
       } else if (!SameSliceLayout(ifd, *first)) {
-        return CorruptError(path.string() + ": slice is " + DescribeSlice(ifd) + ", but " +
+        return CorruptError(path.string() + ": slice is " + DescribePage(ifd) + ", but " +
                             channels[0].files[0].filename().string() + " is " +
-                            DescribeSlice(*first) + "; all slices must match");
+                            DescribePage(*first) + "; all slices must match");
       }
       if (warm.size() < static_cast<size_t>(kMaxOpenSliceFiles)) {
         warm.emplace_back(path, std::shared_ptr<TiffFile>(std::move(file)));

@@ -1,6 +1,7 @@
 #include "io/tiff_file.h"
 
 #include <fcntl.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <tiffio.h>
 #include <unistd.h>
@@ -345,15 +346,47 @@ Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& pa
     return UnsupportedError(name + ": not a regular file");
   }
 
+  const int fd = ::open(name.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return IoError(name + ": cannot open: " + std::strerror(errno));
+  return OpenDescriptor(fd, path, limits);
+}
+
+Result<std::unique_ptr<TiffFile>> TiffFile::OpenMemory(std::span<const std::byte> bytes,
+                                                       const std::string& name,
+                                                       const Limits& limits) {
+  // An anonymous file in RAM: the same indexed, bounded decoding path as a file on disk.
+  const int fd = ::memfd_create("octoscope-tiff", MFD_CLOEXEC);
+  if (fd < 0) return IoError(name + ": cannot create an in-memory file: " + std::strerror(errno));
+  size_t done = 0;
+  while (done < bytes.size()) {
+    const ssize_t n = ::write(fd, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) {
+      const int err = errno;
+      ::close(fd);
+      return ResourceExhaustedError(name +
+                                    ": cannot hold the TIFF in memory: " + std::strerror(err));
+    }
+    done += static_cast<size_t>(n);
+  }
+  // libtiff reads the header from the descriptor's current offset.
+  if (::lseek(fd, 0, SEEK_SET) != 0) {
+    const int err = errno;
+    ::close(fd);
+    return IoError(name + ": cannot rewind the in-memory file: " + std::strerror(err));
+  }
+  return OpenDescriptor(fd, name, limits);
+}
+
+Result<std::unique_ptr<TiffFile>> TiffFile::OpenDescriptor(int fd,
+                                                           const std::filesystem::path& path,
+                                                           const Limits& limits) {
+  const std::string name = path.string();
   std::unique_ptr<TiffFile> file(new TiffFile());
   file->path_ = path;
   file->impl_ = std::make_unique<Impl>();
   Impl& impl = *file->impl_;
-
-  impl.fd = ::open(name.c_str(), O_RDONLY | O_CLOEXEC);
-  if (impl.fd < 0) {
-    return IoError(name + ": cannot open: " + std::strerror(errno));
-  }
+  impl.fd = fd;  // Closed by Impl from here on.
   struct stat st;
   if (::fstat(impl.fd, &st) != 0) return IoError(name + ": cannot stat: " + std::strerror(errno));
   file->file_size_ = static_cast<uint64_t>(st.st_size);
@@ -1029,6 +1062,14 @@ Status TiffFile::ReadBytes(uint64_t offset, std::span<std::byte> out) const {
                         std::to_string(file_size_) + " bytes): the file is truncated");
   }
   return ReadFully(impl_->fd, offset, out, name);
+}
+
+std::string DescribePage(const TiffIfd& ifd) {
+  return std::to_string(ifd.width) + "x" + std::to_string(ifd.height) + " " +
+         (ifd.dtype ? std::string(volume::NumpyName(*ifd.dtype)) : std::string("undecodable")) +
+         (ifd.samples_per_pixel > 1
+              ? " with " + std::to_string(ifd.samples_per_pixel) + " samples per pixel"
+              : std::string());
 }
 
 bool HasTiffSignature(const std::filesystem::path& path) {

@@ -86,6 +86,12 @@ class TiffFile final : public PositionedFile {
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path) {
     return Open(path, Limits{});
   }
+  // Opens a TIFF held in memory (an upload's body) the same way: the bytes are copied into an
+  // anonymous in-memory file (memfd), so decoding and every limit work exactly as for a file.
+  // `name` stands for the file in messages and path().
+  static Result<std::unique_ptr<TiffFile>> OpenMemory(std::span<const std::byte> bytes,
+                                                      const std::string& name,
+                                                      const Limits& limits);
   ~TiffFile() override;
   TiffFile(const TiffFile&) = delete;
   TiffFile& operator=(const TiffFile&) = delete;
@@ -133,6 +139,9 @@ class TiffFile final : public PositionedFile {
  private:
   struct Impl;
   TiffFile() = default;
+  // Open's work on an open descriptor, which the returned file (or the error path) closes.
+  static Result<std::unique_ptr<TiffFile>> OpenDescriptor(int fd, const std::filesystem::path& path,
+                                                          const Limits& limits);
 
   std::filesystem::path path_;
   bool big_tiff_ = false;
@@ -142,6 +151,10 @@ class TiffFile final : public PositionedFile {
   mutable std::mutex mutex_;
   std::unique_ptr<Impl> impl_;  // GUARDED_BY(mutex_) for decoding.
 };
+
+// "WxH dtype[ with N samples per pixel]" ("undecodable" for an unknown sample layout), for
+// messages.
+std::string DescribePage(const TiffIfd& ifd);
 
 // True when the file starts with a TIFF or BigTIFF signature (either byte order).
 bool HasTiffSignature(const std::filesystem::path& path);

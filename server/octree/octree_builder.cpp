@@ -132,6 +132,7 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
           slab = stored;
         }
         s = ingest->Add(channel, z0, depth, slab);
+        if (s.ok() && options.on_slab) options.on_slab(channel, z0, depth, slab);
       }
       if (!s.ok()) {
         fail(std::move(s));
@@ -148,6 +149,8 @@ Status BuildOctree(io::VolumeSource& source, const std::vector<volume::ValueMap>
       reader();
     } catch (const std::exception& e) {
       fail(ResourceExhaustedError(std::string("reading a slab: ") + e.what()));
+    } catch (...) {
+      fail(InternalError("reading a slab: an unknown exception"));
     }
     std::lock_guard lock(mutex);
     --readers_running;

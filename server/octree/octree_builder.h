@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <functional>
+#include <span>
 #include <stop_token>
 #include <vector>
 
@@ -53,7 +54,13 @@ struct BuildOptions {
   uint64_t staging_bytes = uint64_t{512} << 20;
   std::filesystem::path scratch_dir;
   std::function<void(const BuildProgress&)> progress;  // Called on the calling thread.
-  std::stop_token stop;                                // Requests cancellation.
+  // Called on a READER thread (several at once) for every slab right after it was handed to the
+  // ingest: `stored` holds planes [z0, z0 + nz) of `channel` in the stored type. Every plane of
+  // every channel is passed exactly once per build (e.g. to accumulate histograms). An exception
+  // it throws fails the build.
+  std::function<void(int channel, int64_t z0, int64_t nz, std::span<const std::byte> stored)>
+      on_slab;
+  std::stop_token stop;  // Requests cancellation.
 };
 
 // How a build splits its RAM budget. Reader slabs get 1/16 (at most 64 MiB). Staging gets two

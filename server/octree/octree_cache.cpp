@@ -88,6 +88,15 @@ std::string RecordedHolder(int fd) {
   return std::string(line);
 }
 
+// flock(2), retried when a signal interrupts it; 0 or -1 with errno set.
+int Flock(int fd, int operation) {
+  int result;
+  do {
+    result = ::flock(fd, operation);
+  } while (result != 0 && errno == EINTR);
+  return result;
+}
+
 }  // namespace
 
 Result<std::unique_ptr<CacheLock>> CacheLock::Acquire(const fs::path& dir, Mode mode) {
@@ -106,11 +115,7 @@ Result<std::unique_ptr<CacheLock>> CacheLock::Acquire(const fs::path& dir, Mode 
   }
   std::unique_ptr<CacheLock> lock(new CacheLock(dir, fd, mode));
   const int operation = (mode == Mode::kShared ? LOCK_SH : LOCK_EX) | LOCK_NB;
-  int result;
-  do {
-    result = ::flock(fd, operation);
-  } while (result != 0 && errno == EINTR);
-  if (result != 0) {
+  if (Flock(fd, operation) != 0) {
     if (errno != EWOULDBLOCK) {
       return IoError(path.string() + ": cannot lock the cache directory: " + std::strerror(errno));
     }
@@ -142,11 +147,7 @@ Status CacheLock::MakeExclusive() {
     return UnavailableError(dir_.string() +
                             ": the cache directory is read-only; it cannot be built into");
   }
-  int result;
-  do {
-    result = ::flock(fd_, LOCK_EX | LOCK_NB);
-  } while (result != 0 && errno == EINTR);
-  if (result != 0) {
+  if (Flock(fd_, LOCK_EX | LOCK_NB) != 0) {
     const int err = errno;
     // flock(2) dropped the shared lock before failing: this object no longer holds anything.
     ::close(fd_);
@@ -161,6 +162,22 @@ Status CacheLock::MakeExclusive() {
   }
   mode_ = Mode::kExclusive;
   RecordHolder();
+  return Status::Ok();
+}
+
+Status CacheLock::MakeShared() {
+  if (mode_ == Mode::kShared) return Status::Ok();
+  if (Flock(fd_, LOCK_SH | LOCK_NB) != 0) {
+    const int err = errno;
+    ::close(fd_);
+    fd_ = -1;
+    return UnavailableError(dir_.string() + ": lost the cache directory's lock while sharing it: " +
+                            std::strerror(err));
+  }
+  mode_ = Mode::kShared;
+  // The pid recorded for exclusive holders no longer describes the directory (informational
+  // only, as in RecordHolder).
+  (void)!::ftruncate(fd_, 0);
   return Status::Ok();
 }
 
@@ -456,7 +473,8 @@ Status OctreeCache::Commit() {
   OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kManifestName, manifest_.Serialize()));
   std::error_code ec;
   fs::remove(dir_ / kBuildingName, ec);
-  return SyncDirectory(dir_);
+  OCTO_RETURN_IF_ERROR(SyncDirectory(dir_));
+  return lock_ ? lock_->MakeShared() : Status::Ok();
 }
 
 }  // namespace octoscope::octree

@@ -100,6 +100,10 @@ class CacheLock {
   // shares the directory; the lock is then no longer held at all (flock(2) drops it first), so
   // the caller must give up the directory.
   Status MakeExclusive();
+  // Converts an exclusive lock to a shared one (a finished build now only serves the directory),
+  // so other processes may share it. flock(2) converts by dropping first: should another process
+  // take the directory exclusively in that instant, kUnavailable, and nothing is held.
+  Status MakeShared();
 
  private:
   CacheLock(std::filesystem::path dir, int fd, Mode mode)
@@ -136,8 +140,12 @@ class OctreeCache {
   const std::filesystem::path& dir() const { return dir_; }
 
   // Makes a finished build durable and complete: flushes and fsyncs the pool, writes the node
-  // table, then the MANIFEST (both temp-then-rename + fsync, directory fsynced), removes BUILDING.
+  // table, then the MANIFEST (both temp-then-rename + fsync, directory fsynced), removes BUILDING,
+  // and then holds the directory's lock SHARED (CacheLock::MakeShared): the complete cache may be
+  // served by other processes too.
   Status Commit();
+  // The source identity the cache was built from (or is being built from).
+  const SourceIdentity& source() const { return manifest_.source; }
 
   // Bytes per page for a brick of `brick_bytes`: whole bricks, about 1 MiB (at least one brick).
   static uint64_t PageBytesFor(uint64_t brick_bytes);

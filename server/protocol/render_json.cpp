@@ -10,7 +10,7 @@
 #include <string>
 #include <vector>
 
-#include "protocol/json_parse.h"
+#include "protocol/json_fields.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -20,100 +20,11 @@ using nlohmann::json;
 using render::Mat4;
 using render::Vec3;
 
-Status FieldError(const std::string& path, std::string_view problem) {
-  return InvalidArgumentError(path + ": " + std::string(problem));
-}
-
-std::string TypeOf(const json& j) { return std::string(j.type_name()); }
-
-// Shortest round-tripping text of a number, for messages.
-std::string FormatDouble(double v) { return json(v).dump(); }
-
-std::string Join(const std::string& path, std::string_view key) {
-  return path.empty() ? std::string(key) : path + "." + std::string(key);
-}
-std::string Index(const std::string& path, size_t i) {
-  return path + "[" + std::to_string(i) + "]";
-}
-
-// Parses the whole text as one JSON object ("what" names the document in errors).
+// The documents of this file as JSON objects.
 Result<json> ParseObject(std::string_view text, std::string_view what) {
-  if (text.size() > kMaxRenderJsonBytes) {
-    return InvalidArgumentError(std::string(what) + ": larger than " +
-                                std::to_string(kMaxRenderJsonBytes) + " bytes");
-  }
   // Hostile nesting is refused while parsing: no valid document nests deeper than a LUT
   // (object > array > array > number).
-  Result<json> parsed = ParseJsonLimited(text, kMaxRenderJsonDepth);
-  if (!parsed.ok())
-    return InvalidArgumentError(std::string(what) + ": " + parsed.status().message());
-  json doc = std::move(*parsed);
-  if (!doc.is_object()) {
-    return InvalidArgumentError(std::string(what) + ": must be a JSON object, got " + TypeOf(doc));
-  }
-  return doc;
-}
-
-// Refuses keys outside `known` (typos must not be silently ignored).
-Status CheckKeys(const json& object, const std::string& path,
-                 std::initializer_list<std::string_view> known) {
-  for (const auto& item : object.items()) {
-    bool found = false;
-    for (std::string_view k : known) found = found || item.key() == k;
-    if (!found) {
-      std::string list;
-      for (std::string_view k : known) list += (list.empty() ? "" : ", ") + std::string(k);
-      return InvalidArgumentError("unknown key \"" + Printable(item.key(), 60) + "\"" +
-                                  (path.empty() ? "" : " in " + path) + " (known: " + list + ")");
-    }
-  }
-  return Status::Ok();
-}
-
-Result<double> GetNumber(const json& j, const std::string& path) {
-  if (!j.is_number()) return FieldError(path, "must be a number, got " + TypeOf(j));
-  const double v = j.get<double>();
-  if (!std::isfinite(v)) return FieldError(path, "must be finite");
-  return v;
-}
-
-Result<double> GetNumberIn(const json& j, const std::string& path, double lo, double hi) {
-  OCTO_ASSIGN_OR_RETURN(double v, GetNumber(j, path));
-  if (v < lo || v > hi) {
-    return FieldError(path, "is " + FormatDouble(v) + ", must be in [" + FormatDouble(lo) + ", " +
-                                FormatDouble(hi) + "]");
-  }
-  return v;
-}
-
-Result<bool> GetBool(const json& j, const std::string& path) {
-  if (!j.is_boolean()) return FieldError(path, "must be true or false, got " + TypeOf(j));
-  return j.get<bool>();
-}
-
-Result<std::string> GetString(const json& j, const std::string& path) {
-  if (!j.is_string()) return FieldError(path, "must be a string, got " + TypeOf(j));
-  return j.get<std::string>();
-}
-
-Status CheckArray(const json& j, const std::string& path, size_t length) {
-  if (!j.is_array()) return FieldError(path, "must be an array, got " + TypeOf(j));
-  if (j.size() != length) {
-    return FieldError(
-        path, "must have " + std::to_string(length) + " elements, has " + std::to_string(j.size()));
-  }
-  return Status::Ok();
-}
-
-// `n` finite numbers (each within [lo, hi]).
-Result<std::vector<double>> GetNumbers(const json& j, const std::string& path, size_t n,
-                                       double lo = -HUGE_VAL, double hi = HUGE_VAL) {
-  OCTO_RETURN_IF_ERROR(CheckArray(j, path, n));
-  std::vector<double> out(n);
-  for (size_t i = 0; i < n; ++i) {
-    OCTO_ASSIGN_OR_RETURN(out[i], GetNumberIn(j[i], Index(path, i), lo, hi));
-  }
-  return out;
+  return ParseJsonObject(text, what, kMaxRenderJsonBytes, kMaxRenderJsonDepth);
 }
 
 Result<Vec3> GetVec3(const json& j, const std::string& path) {

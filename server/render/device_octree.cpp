@@ -31,6 +31,20 @@ uint64_t MaxBrickNodes(const octree::BrickGeometry& geometry) {
   return count;
 }
 
+// Bytes of one slot: uint16 samples whatever the tree stores.
+uint64_t DeviceBrickBytes(const octree::BrickGeometry& geometry) {
+  return geometry.brick_samples() * 2;
+}
+
+// The slots of a brick buffer of `bytes`: whole bricks, at least kMinBrickSlots, at most what the
+// tree could ever hold (and addressable by a uint32 slot word).
+uint64_t SlotsFor(const octree::BrickGeometry& geometry, uint64_t bytes) {
+  const uint64_t wanted = bytes / DeviceBrickBytes(geometry);
+  const uint64_t most =
+      std::max<uint64_t>(kMinBrickSlots, std::min<uint64_t>(MaxBrickNodes(geometry), kNoNode - 1));
+  return std::clamp<uint64_t>(wanted, kMinBrickSlots, most);
+}
+
 }  // namespace
 
 // All state of a DeviceOctree. Invariants:
@@ -71,8 +85,10 @@ struct DeviceOctree::Impl {
   std::vector<uint32_t> free_slots;  // Stack; the lowest slot on top.
   std::unordered_map<uint32_t, uint32_t> slot_of;
   std::set<uint32_t> stale;
-  std::vector<std::byte> raw;     // One stored brick as ReadBrick gives it.
-  std::vector<uint16_t> widened;  // The same as uint16 for uint8 trees.
+  std::vector<uint64_t> slot_owner;                 // Per slot: reserved for this owner; 0 none.
+  std::unordered_map<uint64_t, uint32_t> reserved;  // Owner -> slots reserved for it (> 0).
+  std::vector<std::byte> raw;                       // One stored brick as ReadBrick gives it.
+  std::vector<uint16_t> widened;                    // The same as uint16 for uint8 trees.
 
   // --- Feedback. ---
   ClMem request_flags;
@@ -80,6 +96,11 @@ struct DeviceOctree::Impl {
   ClMem slot_used_buffer;
   uint32_t request_capacity = 0;
   uint32_t frame = 0;
+
+  // --- Non-blocking reads (BrickReads::kResidentOnly). ---
+  bool resident_only = false;
+  std::vector<uint64_t> missing_pages;  // Pages of skipped bricks, in first-seen order.
+  std::unordered_set<uint64_t> missing_seen;
 
   uint64_t capacity_nodes() const { return live.size(); }
   std::span<uint32_t> Entry(uint32_t id) {
@@ -122,10 +143,21 @@ struct DeviceOctree::Impl {
     MarkDirty(id);
   }
 
+  // Ends the reservation of `slot` (if any).
+  void Unreserve(uint32_t slot) {
+    const uint64_t owner = slot_owner[slot];
+    if (owner == 0) return;
+    slot_owner[slot] = 0;
+    if (const auto it = reserved.find(owner); it != reserved.end() && --it->second == 0) {
+      reserved.erase(it);
+    }
+  }
+
   // Empties `slot` (its node's entry loses in_buffer); with `to_free_list` it becomes free.
   void ReleaseSlot(uint32_t slot, bool to_free_list) {
     const uint32_t id = slot_node[slot];
     if (id == kNoNode) return;
+    Unreserve(slot);
     slot_node[slot] = kNoNode;
     slot_of.erase(id);
     stale.erase(id);
@@ -356,14 +388,43 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
   m.bytes_per_sample = geometry.bytes_per_sample();
   m.device_brick_bytes = geometry.brick_samples() * 2;
 
-  // Brick slots: the option's budget in whole bricks, at least kMinBrickSlots, at most what the
-  // tree could ever hold (and addressable by a uint32 slot word).
-  const uint64_t wanted = options.brick_buffer_bytes / m.device_brick_bytes;
-  const uint64_t most =
-      std::max<uint64_t>(kMinBrickSlots, std::min<uint64_t>(MaxBrickNodes(geometry), kNoNode - 1));
-  const uint64_t slot_count = std::clamp<uint64_t>(wanted, kMinBrickSlots, most);
-  const uint64_t cap = options.max_allocation_bytes != 0 ? options.max_allocation_bytes
-                                                         : context->device().max_alloc_bytes;
+  self->request_capacity_ = options.request_capacity;
+  self->max_allocation_bytes_ = options.max_allocation_bytes;
+  m.request_capacity = options.request_capacity;
+  m.resident_only = options.brick_reads == BrickReads::kResidentOnly;
+  OCTO_RETURN_IF_ERROR(
+      self->AllocateBricks(options.brick_buffer_bytes, options.max_allocation_bytes));
+  m.raw.resize(geometry.brick_bytes());
+  if (m.bytes_per_sample == 1) m.widened.resize(geometry.brick_samples());
+
+  // Feedback buffers, zeroed (request_flags is created with the node buffer).
+  OCTO_ASSIGN_OR_RETURN(
+      m.request_list,
+      context->CreateBuffer(CL_MEM_READ_WRITE, (size_t{m.request_capacity} + 1) * 4));
+  OCTO_RETURN_IF_ERROR(m.Fill(m.request_list, (size_t{m.request_capacity} + 1) * 4));
+
+  // Subscribe first, then walk: every change the walk may miss is delivered by the subscription
+  // (a change it already saw may be replayed, which is harmless).
+  m.changes = octree->SubscribeChanges(options.change_backlog);
+  m.WalkTree();
+  m.TakeWalk();
+  m.EnsureCapacity(0);
+  m.EncodePending();
+  OCTO_RETURN_IF_ERROR(m.Flush(nullptr));
+  return self;
+}
+
+DeviceOctree::~DeviceOctree() = default;
+
+uint64_t DeviceOctree::MaxBrickBufferBytes(const octree::BrickGeometry& geometry) {
+  return SlotsFor(geometry, std::numeric_limits<uint64_t>::max()) * DeviceBrickBytes(geometry);
+}
+
+Status DeviceOctree::AllocateBricks(uint64_t brick_buffer_bytes, uint64_t max_allocation_bytes) {
+  Impl& m = *impl_;
+  const uint64_t slot_count = SlotsFor(geometry(), brick_buffer_bytes);
+  const uint64_t cap =
+      max_allocation_bytes != 0 ? max_allocation_bytes : m.cc->device().max_alloc_bytes;
   const uint64_t per_allocation = std::min<uint64_t>(cap / m.device_brick_bytes, slot_count);
   if (per_allocation == 0) {
     return ResourceExhaustedError("DeviceOctree: one brick of " +
@@ -378,45 +439,68 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
                                   " allocations of at most " + std::to_string(cap) +
                                   " bytes; the limit is " + std::to_string(kMaxBrickAllocations));
   }
-  self->slot_count_ = static_cast<uint32_t>(slot_count);
-  self->slots_per_allocation_ = static_cast<uint32_t>(per_allocation);
-  self->request_capacity_ = options.request_capacity;
-  m.slots_per_allocation = self->slots_per_allocation_;
-  m.request_capacity = options.request_capacity;
+  std::vector<ClMem> bricks;
   for (uint64_t a = 0; a < allocations; ++a) {
     const uint64_t slots = std::min(per_allocation, slot_count - a * per_allocation);
     OCTO_ASSIGN_OR_RETURN(ClMem buffer,
-                          context->CreateBuffer(CL_MEM_READ_ONLY, slots * m.device_brick_bytes));
-    m.bricks.push_back(std::move(buffer));
+                          m.cc->CreateBuffer(CL_MEM_READ_ONLY, slots * m.device_brick_bytes));
+    bricks.push_back(std::move(buffer));
   }
+  OCTO_ASSIGN_OR_RETURN(ClMem used, m.cc->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
+  OCTO_RETURN_IF_ERROR(m.Fill(used, slot_count * 4));
+  m.bricks = std::move(bricks);
+  m.slot_used_buffer = std::move(used);
+  m.slots_per_allocation = static_cast<uint32_t>(per_allocation);
   m.slot_node.assign(slot_count, kNoNode);
   m.slot_key.assign(slot_count, octree::NodeKey{});
   m.slot_used.assign(slot_count, 0);
-  for (uint64_t s = slot_count; s-- > 0;) m.free_slots.push_back(static_cast<uint32_t>(s));
-  m.raw.resize(geometry.brick_bytes());
-  if (m.bytes_per_sample == 1) m.widened.resize(geometry.brick_samples());
-
-  // Feedback buffers, zeroed (request_flags is created with the node buffer).
-  OCTO_ASSIGN_OR_RETURN(
-      m.request_list,
-      context->CreateBuffer(CL_MEM_READ_WRITE, (size_t{m.request_capacity} + 1) * 4));
-  OCTO_RETURN_IF_ERROR(m.Fill(m.request_list, (size_t{m.request_capacity} + 1) * 4));
-  OCTO_ASSIGN_OR_RETURN(m.slot_used_buffer,
-                        context->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
-  OCTO_RETURN_IF_ERROR(m.Fill(m.slot_used_buffer, slot_count * 4));
-
-  // Subscribe first, then walk: every change the walk may miss is delivered by the subscription
-  // (a change it already saw may be replayed, which is harmless).
-  m.changes = octree->SubscribeChanges(options.change_backlog);
-  m.WalkTree();
-  m.TakeWalk();
-  m.EnsureCapacity(0);
-  m.EncodePending();
-  OCTO_RETURN_IF_ERROR(m.Flush(nullptr));
-  return self;
+  m.slot_owner.assign(slot_count, 0);
+  m.reserved.clear();
+  m.free_slots.clear();
+  for (uint64_t slot = slot_count; slot-- > 0;) m.free_slots.push_back(static_cast<uint32_t>(slot));
+  slot_count_ = static_cast<uint32_t>(slot_count);
+  slots_per_allocation_ = static_cast<uint32_t>(per_allocation);
+  return Status::Ok();
 }
 
-DeviceOctree::~DeviceOctree() = default;
+Status DeviceOctree::ResizeBrickBuffer(uint64_t brick_buffer_bytes) {
+  Impl& m = *impl_;
+  if (!m.bricks.empty() && SlotsFor(geometry(), brick_buffer_bytes) == slot_count_) {
+    return Status::Ok();
+  }
+  // Every brick leaves (entries rewritten at the Flush below); then the old buffers go before the
+  // new ones are allocated.
+  for (uint32_t slot = 0; slot < slot_count_; ++slot) m.ReleaseSlot(slot, false);
+  m.stale.clear();
+  m.bricks.clear();
+  m.slot_used_buffer.reset();
+  m.slot_node.clear();
+  m.slot_key.clear();
+  m.slot_used.clear();
+  m.slot_owner.clear();
+  m.reserved.clear();
+  m.free_slots.clear();
+  slot_count_ = 0;
+  const Status allocated = AllocateBricks(brick_buffer_bytes, max_allocation_bytes_);
+  const Status flushed = m.Flush(nullptr);
+  OCTO_RETURN_IF_ERROR(allocated);
+  return flushed;
+}
+
+void DeviceOctree::ReleaseReservations(uint64_t owner) {
+  Impl& m = *impl_;
+  if (owner == 0 || m.reserved.count(owner) == 0) return;
+  for (uint64_t& slot_owner : m.slot_owner) {
+    if (slot_owner == owner) slot_owner = 0;
+  }
+  m.reserved.erase(owner);
+}
+
+std::vector<uint64_t> DeviceOctree::TakeMissingPages() {
+  Impl& m = *impl_;
+  m.missing_seen.clear();
+  return std::exchange(m.missing_pages, {});
+}
 
 Status DeviceOctree::Sync(SyncStats* stats) {
   Impl& m = *impl_;
@@ -536,11 +620,16 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       }
     }
   }
-  // Eviction candidates, computed once: occupied slots older than protect_frame, least recently
-  // used first, at equal stamps finer levels first.
+  // The owner's previous reservation ends here (its pass has sampled those bricks); its new one
+  // is capped so that the other owners and full frames keep room.
+  ReleaseReservations(budget.reserve_for);
+  const uint64_t reserve_cap = budget.reserve_for != 0 ? slot_count_ / (m.reserved.size() + 2) : 0;
+  // Eviction candidates, computed once: occupied, unreserved slots older than protect_frame,
+  // least recently used first, at equal stamps finer levels first.
   std::vector<uint32_t> victims;
   for (uint32_t slot = 0; slot < slot_count_; ++slot) {
-    if (m.slot_node[slot] != kNoNode && m.slot_used[slot] < budget.protect_frame) {
+    if (m.slot_node[slot] != kNoNode && m.slot_used[slot] < budget.protect_frame &&
+        m.slot_owner[slot] == 0) {
       victims.push_back(slot);
     }
   }
@@ -598,7 +687,15 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
     if (item.stale && resident == m.slot_of.end()) continue;
     if (!item.stale && resident != m.slot_of.end()) continue;
     // Read first: a node that lost its brick meanwhile must not cost an eviction.
-    const Status read = octree_->ReadBrick(item.id, m.raw);
+    uint64_t page = 0;
+    const Status read = m.resident_only ? octree_->TryReadBrick(item.id, m.raw, &page)
+                                        : octree_->ReadBrick(item.id, m.raw);
+    if (read.code() == StatusCode::kUnavailable) {
+      // Its page is not in RAM: the next frame asks again; the caller prefetches the page.
+      ++s.unavailable;
+      if (m.missing_seen.insert(page).second) m.missing_pages.push_back(page);
+      continue;
+    }
     if (read.code() == StatusCode::kNotFound) {
       // Gone or brickless: its change event follows; drop the stale copy now.
       if (item.stale) m.ReleaseSlot(resident->second, true);
@@ -647,6 +744,11 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
     m.slot_used[slot] = m.frame;
     m.slot_of[item.id] = slot;
     m.WriteResidency(item.id);
+    if (!item.ancestor && s.reserved < reserve_cap) {
+      m.slot_owner[slot] = budget.reserve_for;
+      ++m.reserved[budget.reserve_for];
+      ++s.reserved;
+    }
   }
   // The residency bits reach the device even when an upload failed midway.
   const Status flushed = m.Flush(nullptr);
@@ -669,7 +771,8 @@ Status DeviceOctree::UploadAll(std::span<const uint32_t> nodes, uint32_t protect
 cl_mem DeviceOctree::node_buffer() const { return impl_->node_buffer.get(); }
 
 std::array<cl_mem, kMaxBrickAllocations> DeviceOctree::brick_buffers() const {
-  std::array<cl_mem, kMaxBrickAllocations> out;
+  std::array<cl_mem, kMaxBrickAllocations> out{};
+  if (impl_->bricks.empty()) return out;  // A failed resize: no kernel may run on this mirror.
   for (int a = 0; a < kMaxBrickAllocations; ++a) {
     out[a] = impl_->bricks[static_cast<size_t>(a) < impl_->bricks.size() ? a : 0].get();
   }
@@ -682,6 +785,22 @@ cl_mem DeviceOctree::slot_used() const { return impl_->slot_used_buffer.get(); }
 
 int DeviceOctree::allocation_count() const { return static_cast<int>(impl_->bricks.size()); }
 uint64_t DeviceOctree::resident_bricks() const { return impl_->slot_of.size(); }
+
+uint64_t DeviceOctree::brick_buffer_bytes() const {
+  return uint64_t{slot_count_} * impl_->device_brick_bytes;
+}
+
+uint64_t DeviceOctree::device_bytes() const {
+  const Impl& m = *impl_;
+  return brick_buffer_bytes() + m.mirror.size() * 4 + m.capacity_nodes() * 4 +
+         (uint64_t{m.request_capacity} + 1) * 4 + uint64_t{slot_count_} * 4;
+}
+
+uint64_t DeviceOctree::reserved_slots() const {
+  uint64_t total = 0;
+  for (const auto& [owner, count] : impl_->reserved) total += count;
+  return total;
+}
 
 std::optional<uint32_t> DeviceOctree::SlotOf(uint32_t id) const {
   const auto it = impl_->slot_of.find(id);

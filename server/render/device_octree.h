@@ -44,9 +44,25 @@
 // re-uploaded FIRST within the budget (no flicker: nothing else changes); a node that lost its
 // brick frees its slot.
 //
+// Reservations (several refinements sharing a small buffer): an Upload with
+// UploadBudget::reserve_for = owner (e.g. a view) first releases that owner's previous
+// reservation, then reserves the REQUESTED bricks it uploads (not ancestors, not re-uploads) for
+// the owner, at most slot_count / (owners + 1) of them (owners = the owners holding reservations,
+// this one included; so the others and full frames always keep room). No Upload of another owner
+// (or without owner) evicts a reserved slot; the owner's next Upload (after its next pass sampled
+// them) or ReleaseReservations(owner) frees them. So a paused refinement ray's next brick
+// survives the passes of other views until its own next pass: each of its passes advances.
+//
+// Brick reads (DeviceOctreeOptions::brick_reads): kBlocking reads with Octree::ReadBrick (may wait
+// for the disk: command-line renders); kResidentOnly with Octree::TryReadBrick, which never waits:
+// a brick whose page is not in RAM is skipped (UploadStats::unavailable; it stays requested by the
+// next frame) and its page is recorded for TakeMissingPages, so the render service can prefetch it
+// (render_service.h) while the render thread goes on.
+//
 // Thread safety: NOT thread-safe. One render thread owns a DeviceOctree (and the device queue it
 // enqueues on). The octree may be inserting concurrently on other threads: Sync and Upload read
-// it only through its thread-safe GetNode / ReadBrick and this mirror's change subscription.
+// it only through its thread-safe GetNode / ReadBrick / TryReadBrick and this mirror's change
+// subscription.
 #ifndef OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
 #define OCTOSCOPE_RENDER_DEVICE_OCTREE_H_
 
@@ -69,6 +85,12 @@ namespace octoscope::render {
 
 inline constexpr int kMaxBrickAllocations = 4;
 
+// How Upload reads bricks from the octree (see the file comment).
+enum class BrickReads {
+  kBlocking,      // Octree::ReadBrick: may wait for a page load.
+  kResidentOnly,  // Octree::TryReadBrick: pages not in RAM are skipped and recorded.
+};
+
 struct DeviceOctreeOptions {
   // Total brick buffer size, rounded down to whole bricks; at least kMinBrickSlots slots and at
   // most the node count the geometry could ever need. Default 512 MiB.
@@ -81,6 +103,7 @@ struct DeviceOctreeOptions {
   // How many change-log events the mirror may fall behind between two Syncs before the log drops
   // them and the next Sync walks the whole tree again instead (ChangeLog, "Bound"). Must be > 0.
   size_t change_backlog = octree::kDefaultChangeBacklog;
+  BrickReads brick_reads = BrickReads::kBlocking;
 };
 inline constexpr uint32_t kMinBrickSlots = 8;
 
@@ -89,16 +112,21 @@ struct UploadBudget {
   double max_ms = 150;         // Stop starting uploads once this much time was spent (>= 1 brick).
   uint64_t max_bricks = 0;     // 0 = no count limit.
   uint32_t protect_frame = 0;  // Slots with slot_used >= this stamp are never evicted.
+  // Non-zero: reserve the requested bricks this call uploads for this owner until its next
+  // Upload (see "Reservations" in the file comment).
+  uint64_t reserve_for = 0;
 };
 
 struct UploadStats {
-  uint64_t requested = 0;   // Distinct nodes asked for (after adding ancestors).
-  uint64_t uploaded = 0;    // Bricks written to the device (re-uploads included).
-  uint64_t reuploaded = 0;  // Of which: resident bricks refreshed after construction changed them.
-  uint64_t evicted = 0;     // Resident bricks dropped to make room.
-  uint64_t deferred = 0;    // Requests left for a later frame (budget or no evictable slot).
-  uint64_t bytes = 0;       // Brick bytes written.
-  double ms = 0;            // Time spent uploading.
+  uint64_t requested = 0;    // Distinct nodes asked for (after adding ancestors).
+  uint64_t uploaded = 0;     // Bricks written to the device (re-uploads included).
+  uint64_t reuploaded = 0;   // Of which: resident bricks refreshed after construction changed them.
+  uint64_t evicted = 0;      // Resident bricks dropped to make room.
+  uint64_t deferred = 0;     // Requests left for a later frame (budget or no evictable slot).
+  uint64_t unavailable = 0;  // kResidentOnly: bricks skipped because their page is not in RAM.
+  uint64_t reserved = 0;     // Of the uploaded bricks: reserved for budget.reserve_for.
+  uint64_t bytes = 0;        // Brick bytes written.
+  double ms = 0;             // Time spent uploading.
 };
 
 struct SyncStats {
@@ -115,6 +143,9 @@ class DeviceOctree {
   static Result<std::unique_ptr<DeviceOctree>> Create(const ComputeContext* context,
                                                       octree::Octree* octree,
                                                       const DeviceOctreeOptions& options = {});
+  // The most brick-buffer bytes a mirror of `geometry` can use (one slot per node that can ever
+  // own a brick, at least kMinBrickSlots): a larger brick_buffer_bytes is clamped to it.
+  static uint64_t MaxBrickBufferBytes(const octree::BrickGeometry& geometry);
   ~DeviceOctree();
   DeviceOctree(const DeviceOctree&) = delete;
   DeviceOctree& operator=(const DeviceOctree&) = delete;
@@ -137,6 +168,19 @@ class DeviceOctree {
   Status UploadAll(std::span<const uint32_t> nodes, uint32_t protect_frame,
                    UploadStats* stats = nullptr);
 
+  // Frees the slots reserved for `owner` (e.g. when its refinement ends); they stay resident.
+  void ReleaseReservations(uint64_t owner);
+  // kResidentOnly: the distinct pages of the bricks Upload skipped since the last call, in the
+  // order first seen (then forgotten).
+  std::vector<uint64_t> TakeMissingPages();
+
+  // Re-sizes the brick buffer to `brick_buffer_bytes` (rounded and clamped as in Create). When the
+  // slot count changes, every brick becomes non-resident (entries rewritten), reservations end,
+  // and the old device buffers are released BEFORE the new ones are allocated (the device never
+  // holds both); the next frames upload what they need again. Errors (kResourceExhausted, device
+  // errors) leave the mirror without brick buffer: it must then be destroyed.
+  Status ResizeBrickBuffer(uint64_t brick_buffer_bytes);
+
   // --- For kernels: bind these as arguments (node buffer and request flags may be reallocated
   // by Sync when the tree outgrows the capacity: re-bind after every Sync). ---
   cl_mem node_buffer() const;
@@ -152,6 +196,12 @@ class DeviceOctree {
   const octree::Octree& octree() const { return *octree_; }
   const octree::BrickGeometry& geometry() const { return octree_->geometry(); }
   uint32_t slot_count() const { return slot_count_; }
+  // Device bytes of the brick buffer (slot_count * device_brick_bytes) and of all the mirror's
+  // buffers (brick, node, feedback buffers).
+  uint64_t brick_buffer_bytes() const;
+  uint64_t device_bytes() const;
+  // Slots reserved now (all owners).
+  uint64_t reserved_slots() const;
   int allocation_count() const;
   uint64_t resident_bricks() const;
   // The slot of node `id` when its brick is resident.
@@ -171,12 +221,16 @@ class DeviceOctree {
  private:
   struct Impl;
   DeviceOctree() = default;
+  // Creates `slot_count` slots' brick buffers (split as the file comment says) and the slot
+  // state; REQUIRES: no brick buffer.
+  Status AllocateBricks(uint64_t brick_buffer_bytes, uint64_t max_allocation_bytes);
 
   std::unique_ptr<Impl> impl_;
   octree::Octree* octree_ = nullptr;
   uint32_t slot_count_ = 0;
   uint32_t slots_per_allocation_ = 0;
   uint32_t request_capacity_ = 0;
+  uint64_t max_allocation_bytes_ = 0;  // DeviceOctreeOptions::max_allocation_bytes.
   uint64_t total_uploaded_ = 0;
 };
 

@@ -36,6 +36,7 @@
 #include "io/volume_source.h"
 #include "render/camera.h"
 #include "render/linear_algebra.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "util/result.h"
 #include "volume/data_type.h"
@@ -87,28 +88,6 @@ class ReferenceVolume {
   Vec3 spacing_{1, 1, 1};
   volume::DataType stored_type_ = volume::DataType::kUint16;
   std::vector<std::vector<uint16_t>> channels_;
-};
-
-// A rendered image: width * height RGBA pixels, row 0 at the top, 4 floats per pixel.
-struct RenderImage {
-  int width = 0;
-  int height = 0;
-  std::vector<float> rgba;
-
-  // REQUIRES: 0 <= x < width, 0 <= y < height.
-  std::array<float, 4> Pixel(int x, int y) const {
-    const size_t i = (static_cast<size_t>(y) * width + x) * 4;
-    return {rgba[i], rgba[i + 1], rgba[i + 2], rgba[i + 3]};
-  }
-};
-
-// What a render did, for tests and benchmarks.
-struct RenderStats {
-  uint64_t rays = 0;              // Pixels.
-  uint64_t rays_hit = 0;          // Rays whose clipped interval through the box is not empty.
-  uint64_t steps = 0;             // Sample positions visited (none when no channel is enabled).
-  uint64_t early_terminated = 0;  // DVR rays stopped by kEarlyTerminationAlpha.
-  std::vector<uint64_t> channel_samples;  // Volume reads per channel (trilinear lookups).
 };
 
 // The parameter interval [t_enter, t_exit] (t >= 0) in which `ray` lies inside `box` (faces

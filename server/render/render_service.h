@@ -1,58 +1,47 @@
-// RenderService: frame jobs of many views rendered against ONE octree on ONE OpenCL device by ONE
-// render thread (docs/render_service.md). It is what `octoscope serve` puts its sessions on: each
-// browser view (a 3-D view or a slice view of some session) is a View; every state change the
-// client sends becomes a FrameRequest (a snapshot of camera, parameters and options), and the
-// service answers with FrameResults through the view's callback.
+// RenderService: ONE render thread per OpenCL device rendering the views of SEVERAL datasets
+// (design, scheduling and memory rules: docs/render_service.md).
 //
-// One render thread per device: Create starts a thread that creates and exclusively owns the
-// device objects — the ProgramCache (unless a shared one is passed), the DeviceOctree, the
-// VolumeRenderer and the SliceRenderer (both on the one DeviceOctree) — and is the only thread that
-// enqueues work on the device queue through them. No other thread ever touches them; other threads
-// only hand requests over (Submit) and receive results (callbacks, which run ON the render thread).
+// Model: AddDataset registers an octree (possibly still being built); OpenView opens a view of
+// one dataset with a callback; every state the client shows becomes a FrameRequest submitted to
+// the view. A view has ONE pending slot: Submit replaces the pending request (dropped, no
+// callback) and supersedes the view's started refinement (dropped at its next pass boundary, no
+// callback). Renders never queue up.
 //
-// Latest state wins: a view has ONE pending slot. Submit replaces the pending request (the old one
-// is dropped without a callback) and bumps the view's atomic generation; the view's in-flight job
-// (a refinement, several passes long) sees the new generation at its next pass boundary and is
-// dropped without a callback. A pass that already started finishes and its image is delivered
-// (a stale but complete image is better than none while the user keeps interacting).
-// Cancelled or replaced requests therefore produce NO callback; every request that is not
-// cancelled ends in exactly one callback with final == true (an image, or an error status).
+// Results. Every request that is not replaced, superseded or closed ends in exactly ONE callback
+// with final == true; a refinement's passes before it give progress callbacks (final == false)
+// unless progress_images is false. A FrameResult carries the image (RenderImage: width x height
+// RGBA floats), FrameStats (stats.ms_total: render ms so far) and the request's identifying
+// fields: view, dataset, sequence and version (echoed), kind, mode (full frame = interactive
+// tier, refine = refinement tier), stats.passes (passes so far), stats.finished_fraction
+// (refinement progress, 0..1) and final.
 //
-// Scheduling (render thread, one step at a time):
-//  1. a refinement whose last pass made no progress runs its next pass at once (see pinning);
-//  2. pending FULL-FRAME requests (interaction), round robin over views: one pass each;
-//  3. refinements, round robin over views: a pending refine request starts a new job (replacing
-//     that view's job); otherwise the view's job advances ONE pass. A long refinement thus never
-//     delays a full frame of another view by more than one pass.
-// After every refinement pass the callback receives a progress image (final == false) unless
-// the request asked for the final image only.
+// Errors. Submit answers at once only kNotFound (view not open), kInvalidArgument (no camera
+// / no slice) and kInternal once the render thread itself failed (host memory exhausted outside
+// a pass: the service then serves nothing more; never a terminate). Everything else ends that
+// request through its callback: final == true, an empty image and status = kResourceExhausted
+// (frame buffers over max_request_bytes, frame memory not free within admission_timeout, device
+// allocation failed), kInvalidArgument (parameters invalid for the dataset), kIoError/kDataLoss (a
+// brick page cannot be read; refinements only), or the device error; a device mirror (DeviceOctree
+// + renderers) that cannot be created (bad_alloc, OpenCL failure) fails the requests that needed
+// it, "device mirror" in the message. Nothing throws out of the render thread; the service keeps
+// serving the other views.
 //
-// Pinning ("bricks in use by an in-flight frame stay pinned"): a pass is Sync + kernel +
-// feedback read-back + Upload, all on the render thread, and every eviction happens inside
-// DeviceOctree::Upload. So no brick can be evicted while a kernel that samples it runs: the only
-// thread that could evict is the one waiting for that kernel. Within a pass, Upload protects the
-// bricks the pass sampled (UploadBudget::protect_frame) and the bricks it uploads itself.
-// Between passes of different jobs nothing is pinned — a paused refinement ray holds no brick
-// (its state is a sample index and an accumulated colour), and the next pass re-requests what it
-// needs. Progress with a brick buffer too small for all views together: a pass that advanced no
-// ray (no new sample, no newly finished ray) is re-run immediately, before any other job's
-// upload can evict what it just uploaded, and the renderer guarantees that such a pass advances.
+// Callbacks run ON THE RENDER THREAD, one at a time, while no other view renders: they must
+// return quickly (move the image into a slot and notify another thread; never encode, wait, or
+// do I/O there). A callback may call Submit, OpenView and CloseView (of any view; closing its own
+// does not wait) and RemoveDataset (does not wait then); it must not destroy the service. A
+// callback that throws is caught, counted in stats() and its view closed.
 //
-// Construction may be inserting into the octree concurrently: every pass starts with Sync (in
-// the renderer), so each frame shows the tree as it was at its start and later frames fill in.
-//
-// Thread safety: OpenView, CloseView, Submit and stats are thread-safe and may be called from any
-// thread, including from a callback. Submit never waits for rendering: it takes one small mutex
-// (the request is moved into place outside it) and notifies the render thread. CloseView waits
-// only for a callback of that view that is running at that moment (unless called from it).
-// Callbacks run on the render thread, one at a time: they must be quick (copy or move the image
-// and hand it to another thread; encode elsewhere) and must not destroy the service. An
-// exception thrown by a callback is caught on the render thread, recorded in stats(), and its
-// view is closed; exceptions never cross threads.
+// Thread safety: every public method is thread-safe. Submit never waits for rendering (one short
+// mutex). CloseView returns once no callback of the view runs and none will; RemoveDataset also
+// waits for the render thread to drop the dataset's device mirror (after its current pass) and for
+// prefetches of its page cache. The render thread never blocks on disk: bricks not in RAM are
+// skipped and their pages prefetched by I/O threads that wake it.
 #ifndef OCTOSCOPE_RENDER_RENDER_SERVICE_H_
 #define OCTOSCOPE_RENDER_RENDER_SERVICE_H_
 
 #include <atomic>
+#include <chrono>
 #include <condition_variable>
 #include <cstdint>
 #include <functional>
@@ -60,16 +49,19 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "octree/octree.h"
+#include "paging/page_prefetcher.h"
 #include "render/camera.h"
 #include "render/device.h"
 #include "render/device_octree.h"
 #include "render/linear_algebra.h"
 #include "render/program_cache.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "render/slice_renderer.h"
 #include "render/volume_renderer.h"
@@ -78,7 +70,8 @@
 
 namespace octoscope::render {
 
-using ViewId = uint64_t;  // 1, 2, ...; never 0.
+using ViewId = uint64_t;      // 1, 2, ...; never 0.
+using DatasetKey = uint64_t;  // 1, 2, ...; never 0.
 
 enum class FrameKind { kVolume, kSlice };
 
@@ -94,9 +87,12 @@ struct FrameRequest {
   // service's RenderServiceOptions::default_frame. Slices: a full frame is one slice frame; a
   // refinement repeats slice frames (one per pass, with progress images) until a frame requests
   // no brick (final, stats.final true) or max_passes (0 = kDefaultSliceMaxPasses) ran.
+  // (options.view and options.upload.reserve_for are set by the service.)
   std::optional<FrameOptions> options;
-  // The caller's number for this state, echoed in its FrameResults.
+  // The caller's numbers for this request and for the state version it shows, echoed in its
+  // FrameResults (the service uses neither).
   uint64_t sequence = 0;
+  uint64_t version = 0;
   // Refinement: deliver the image after every pass (true) or only the final one.
   bool progress_images = true;
 };
@@ -108,124 +104,205 @@ inline constexpr int kDefaultSliceMaxPasses = 32;
 // What a view's callback receives.
 struct FrameResult {
   ViewId view = 0;
-  uint64_t sequence = 0;
+  DatasetKey dataset = 0;
+  uint64_t sequence = 0;  // FrameRequest::sequence.
+  uint64_t version = 0;   // FrameRequest::version.
   FrameKind kind = FrameKind::kVolume;
-  RenderImage image;  // Empty when !status.ok().
+  FrameMode mode = FrameMode::kFullFrame;  // The request's (resolved) mode.
+  RenderImage image;                       // Empty when !status.ok().
   // Of this request so far (all passes). Slices: ms_total, passes, samples, requests,
   // bricks_uploaded, final (the last frame requested nothing); finished_fraction 1.
   FrameStats stats;
+  // Render-thread time this request was charged so far (what fair scheduling counts: its passes,
+  // the service's work around them, callbacks excluded), up to this callback.
+  double scheduled_ms = 0;
   // The last result for this request: a full frame, the last refinement pass (complete or
   // max_passes reached), or an error.
   bool final = false;
+  // kResourceExhausted: the request needs more device memory than max_request_bytes, or waited
+  // admission_timeout for frame memory; kIoError/kDataLoss...: a brick page could not be read;
+  // kInvalidArgument: parameters invalid for the dataset; others: device errors.
   Status status;
 };
 
-// Runs on the render thread; see the thread-safety note in the file comment.
+// Runs on the render thread and must return quickly (see the file comment).
 using FrameCallback = std::function<void(FrameResult result)>;
 
+// A request of 4096^2 pixels (36 bytes per pixel for DVR, 20 + 4 per enabled channel for
+// MIP/MinIP refinements) fits; 16384^2 (9 GiB and more) does not.
+inline constexpr uint64_t kDefaultMaxRequestBytes = uint64_t{1} << 30;
+// A mirror grows to a larger share only when the share exceeds its size by this factor.
+inline constexpr double kMirrorGrowth = 1.25;
+
 struct RenderServiceOptions {
+  // Options of every dataset's DeviceOctree, except brick_buffer_bytes (each mirror gets its
+  // share of device_memory_bytes) and brick_reads (always kResidentOnly).
   DeviceOctreeOptions device_octree;
+  // Brick-buffer budget of the whole device, divided among the datasets with open views.
+  // 0 = automatic: 40 % of the device's global memory (at most 1 GiB on CPU devices, whose
+  // memory is the host RAM the page caches use too), at least 64 MiB.
+  uint64_t device_memory_bytes = 0;
+  // Device memory for the frame buffers of all views together. 0 = automatic: 25 % of the
+  // device's global memory, at least max_request_bytes.
+  uint64_t frame_memory_bytes = 0;
+  // The most device memory one request's frame buffers may need (see kDefaultMaxRequestBytes).
+  uint64_t max_request_bytes = kDefaultMaxRequestBytes;
+  // How long an admissible request waits for frame memory held by other views.
+  std::chrono::milliseconds admission_timeout{10'000};
   FrameOptions default_frame;  // For requests without options.
   // Extra build options of the slice kernels (SliceRenderer::Create).
   std::string slice_build_options;
+  // Scheduling (docs/render_service.md): the share of render time refinements get while full
+  // frames wait too, in (0, 1); and the deficit round robin quantum.
+  double refine_share = 0.25;
+  double quantum_ms = 10;
+  // A dataset's mirror is dropped this long after its last view closed.
+  std::chrono::milliseconds mirror_idle_timeout{30'000};
+  // Non-blocking brick reads: I/O threads of the service's prefetcher, and how long a refinement
+  // waiting for pages waits before it tries again anyway.
+  int io_threads = 2;
+  std::chrono::milliseconds io_retry{250};
 };
 
-// Counters since Create (a consistent snapshot).
+// Counters since Create (a consistent snapshot); *_bytes and mirrors are current values.
 struct RenderServiceStats {
-  uint64_t requests = 0;          // Accepted Submits.
-  uint64_t replaced = 0;          // Pending requests replaced by a newer Submit before starting.
-  uint64_t cancelled = 0;         // Started jobs dropped at a pass boundary (newer state/close).
-  uint64_t passes = 0;            // Kernel passes run (full frames and refinement passes).
-  uint64_t stall_retries = 0;     // Refinement passes re-run at once after a pass without progress.
-  uint64_t frames_delivered = 0;  // Callbacks made with final == true (counted before the call).
+  uint64_t requests = 0;            // Accepted Submits.
+  uint64_t replaced = 0;            // Pending requests replaced by a newer Submit before starting.
+  uint64_t cancelled = 0;           // Started jobs dropped at a pass boundary (newer state/close).
+  uint64_t passes = 0;              // Kernel passes run (full frames and refinement passes).
+  uint64_t frames_delivered = 0;    // Callbacks made with final == true (counted before the call).
   uint64_t progress_delivered = 0;  // Callbacks made with final == false.
   uint64_t callback_failures = 0;   // Callbacks that threw (their views were closed).
   std::string last_callback_error;  // what() of the last one.
+  uint64_t refused = 0;             // Requests ended with kResourceExhausted by admission.
+  uint64_t admission_waits = 0;     // Requests that had to wait for frame memory.
+  uint64_t frame_buffer_allocations = 0;  // Device buffers allocated for frames (all views).
+  uint64_t io_waits = 0;                  // Refinement passes after which the job waited for pages.
+  uint64_t pages_requested = 0;           // Prefetch requests accepted (kQueued).
+  uint64_t page_errors = 0;               // Prefetch completions with a read error.
+  uint64_t mirrors_created = 0;
+  uint64_t mirrors_dropped = 0;
+  uint64_t mirror_resizes = 0;
+  uint64_t mirror_failures = 0;     // Mirrors that could not be created (requests failed).
+  double full_frame_ms = 0;         // Render-thread time of full-frame passes.
+  double refine_ms = 0;             // Render-thread time of refinement passes.
+  uint64_t mirrors = 0;             // Mirrors now.
+  uint64_t brick_memory_bytes = 0;  // Brick buffers of all mirrors now.
+  uint64_t frame_memory_bytes = 0;  // Frame buffers of all views now.
 };
 
 class RenderService {
  public:
-  // Takes `context` (the device). `octree` must outlive the service; `spacing_um` is the
-  // volume's voxel pitch. Starts the render thread and returns once it created the device
-  // objects, or with their error (the thread is then gone).
+  // Takes `context` (the device). Starts the prefetcher and the render thread and returns once
+  // the thread is running, or with the error that prevented it (nothing is left running).
+  // Device objects of datasets are created later, on the render thread (errors reach the views).
   static Result<std::unique_ptr<RenderService>> Create(ComputeContext context,
-                                                       octree::Octree* octree,
-                                                       const Vec3& spacing_um,
                                                        const RenderServiceOptions& options = {});
   // The same on a context and ProgramCache owned elsewhere (tests share one per binary), which
   // must outlive the service. Nothing else should enqueue on the context's queue meanwhile.
   static Result<std::unique_ptr<RenderService>> CreateShared(
-      const ComputeContext* context, ProgramCache* programs, octree::Octree* octree,
-      const Vec3& spacing_um, const RenderServiceOptions& options = {});
+      const ComputeContext* context, ProgramCache* programs,
+      const RenderServiceOptions& options = {});
 
-  // Stops the render thread after its current pass (at most one pass; a callback running then
-  // completes), drops pending requests and jobs without callbacks, joins. Never throws.
-  // REQUIRES: not called from a callback.
+  // Stops the render thread after its current pass (a callback running then completes), drops
+  // pending requests and jobs without callbacks, the mirrors and the prefetches; joins. Never
+  // throws. REQUIRES: not called from a callback.
   ~RenderService();
   RenderService(const RenderService&) = delete;
   RenderService& operator=(const RenderService&) = delete;
 
-  // A new view whose results go to `callback` (not empty).
-  ViewId OpenView(FrameCallback callback);
+  // Adds a dataset: `octree` (and its page cache) must stay alive until RemoveDataset(key)
+  // returned or the service is destroyed; `spacing_um` is its voxel pitch (finite, > 0).
+  // Nothing is allocated on the device until a view of it renders.
+  DatasetKey AddDataset(octree::Octree* octree, const Vec3& spacing_um);
+  // Closes the dataset's views (no callback of them after this returns), makes the render thread
+  // drop its mirror (after its current pass) and waits until no prefetch uses its page cache.
+  // Unknown keys are ignored. From a callback it cannot wait: the views are closed at once and
+  // the mirror is dropped right after the callback; the octree must then live until the
+  // service is destroyed.
+  void RemoveDataset(DatasetKey dataset);
+
+  // A new view of `dataset` whose results go to `callback`. kNotFound for a dataset that is not
+  // added (or removed); kInvalidArgument for an empty callback.
+  Result<ViewId> OpenView(DatasetKey dataset, FrameCallback callback);
   // Drops the view's pending request and job; once CloseView returns, the view's callback is
   // never called again (it waits for a callback of this view running on the render thread).
   // Unknown or already closed views are ignored.
   void CloseView(ViewId view);
-  // Makes `request` the view's pending state (see "Latest state wins"). kNotFound when the view
-  // is not open (never opened, closed, or closed after its callback threw); kInvalidArgument
-  // for a request that cannot be rendered at all (volume frame without camera, slice frame
-  // without slice).
-  // Parameter errors are reported through the callback (status, final == true).
+  // Makes `request` the view's pending state (replacing a pending one). kNotFound when the view
+  // is not open (never opened, closed, its dataset removed, or closed after its callback threw);
+  // kInvalidArgument for a request that cannot be rendered at all (volume frame without camera,
+  // slice frame without slice). Parameter and memory errors are reported through the callback
+  // (status, final == true).
   Status Submit(ViewId view, FrameRequest request);
 
   RenderServiceStats stats() const;
   const DeviceInfo& device() const { return context_->device(); }
+  // The budgets in effect (automatic values resolved).
+  uint64_t device_memory_bytes() const { return device_memory_bytes_; }
+  uint64_t frame_memory_bytes() const { return frame_memory_bytes_; }
 
  private:
   struct View {
+    DatasetKey dataset = 0;
     std::shared_ptr<FrameCallback> callback;
     std::unique_ptr<FrameRequest> pending;
     // Bumped by every Submit and by CloseView; a started job of an older generation is dropped
     // at its next pass boundary. Shared with the render thread's job.
     std::shared_ptr<std::atomic<uint64_t>> generation;
   };
-  struct Job;      // Render-thread state of one started request (render_service.cpp).
-  struct Devices;  // The render thread's device objects.
-  struct Step;     // What the render thread does next.
+  struct Dataset {
+    octree::Octree* octree = nullptr;
+    Vec3 spacing;
+    int open_views = 0;
+  };
+  // Everything the render thread owns — mirrors, jobs, frame buffers, scheduling state — and
+  // its steps (render_service.cpp). A nested type: it may use the members below.
+  struct Worker;
 
-  RenderService(const ComputeContext* context, ProgramCache* programs, octree::Octree* octree,
-                const Vec3& spacing_um, const RenderServiceOptions& options);
+  RenderService(const ComputeContext* context, ProgramCache* programs,
+                const RenderServiceOptions& options);
   static Result<std::unique_ptr<RenderService>> Start(std::unique_ptr<RenderService> service);
 
-  // The render thread: creates the device objects, reports `init` and loops over steps.
+  // The render thread: reports `init` (start-up errors included) and runs the Worker.
   void Run(std::function<void(Status)> init);
-  // REQUIRES: mu_ held, on the render thread. Picks the next step; false when there is none.
-  bool PickLocked(std::map<ViewId, std::unique_ptr<Job>>& jobs, Step* step);
-  void Execute(Devices& devices, std::map<ViewId, std::unique_ptr<Job>>& jobs, Step& step);
-  // Calls the view's callback unless the view was closed meanwhile.
-  void Deliver(ViewId view, const std::shared_ptr<FrameCallback>& callback, FrameResult result);
+  // Calls the view's callback unless the view was closed meanwhile (render thread); returns the
+  // milliseconds it took.
+  double Deliver(ViewId view, const std::shared_ptr<FrameCallback>& callback, FrameResult result);
+  // REQUIRES: mu_ held. Closes the view (its job is dropped at the next pass boundary) and
+  // returns its pending request, to be destroyed outside the lock.
+  std::unique_ptr<FrameRequest> EraseViewLocked(std::map<ViewId, View>::iterator it);
+  // The prefetcher's completion callback (an I/O thread).
+  void OnPrefetchComplete(const paging::PrefetchCompletion& completion);
 
   std::unique_ptr<ComputeContext> owned_context_;  // Create's context; null for CreateShared.
   const ComputeContext* context_;
   ProgramCache* shared_programs_;  // CreateShared's cache; null: the render thread makes one.
-  octree::Octree* const octree_;
-  const Vec3 spacing_;
   const RenderServiceOptions options_;
+  uint64_t device_memory_bytes_ = 0;
+  uint64_t frame_memory_bytes_ = 0;
 
-  mutable std::mutex mu_;                // Guards everything below.
-  std::condition_variable work_cv_;      // Render thread: new work or stop.
-  std::condition_variable callback_cv_;  // CloseView: a callback finished.
+  mutable std::mutex mu_;                // Guards everything below up to stats_.
+  std::condition_variable work_cv_;      // Render thread: new work, completions or stop.
+  std::condition_variable callback_cv_;  // CloseView/RemoveDataset: a callback finished.
+  std::condition_variable dropped_cv_;   // RemoveDataset: the render thread dropped a dataset.
   bool stop_ = false;
+  Status failed_;  // Set when the render thread ended by an exception (see Run).
   ViewId next_view_ = 1;
+  DatasetKey next_dataset_ = 1;
   std::map<ViewId, View> views_;
-  ViewId full_frame_cursor_ = 0;  // Round robin: the last view served in step 2 / step 3.
-  ViewId refine_cursor_ = 0;
-  ViewId retry_view_ = 0;    // Step 1's view (0 = none).
+  std::map<DatasetKey, Dataset> datasets_;
+  uint64_t datasets_version_ = 1;  // Bumped when datasets or their open-view counts change.
+  std::vector<paging::PrefetchCompletion> completions_;  // From the I/O threads.
+  std::vector<DatasetKey> drop_queue_;                   // Removed, mirror still to drop.
+  std::set<DatasetKey> dropped_;                         // Dropped, RemoveDataset not returned.
   ViewId calling_view_ = 0;  // The view whose callback runs now (0 = none).
   RenderServiceStats stats_;
 
-  std::thread thread_;  // Last: started after everything above exists.
   std::thread::id render_thread_id_;
+  // Declared after mu_ and completions_: destroyed (its I/O threads joined) before them.
+  std::unique_ptr<paging::PagePrefetcher> prefetcher_;
+  std::thread thread_;  // Last: started after everything above exists.
 };
 
 }  // namespace octoscope::render

@@ -24,7 +24,7 @@
 
 #include "render/camera.h"
 #include "render/linear_algebra.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "util/status.h"
 
 namespace octoscope::render {

@@ -151,7 +151,20 @@ int SliceLevel(double um_per_pixel, const Vec3& spacing_um, double lod_bias, int
 struct SliceRenderer::Impl {
   const ComputeContext* context = nullptr;
   ClKernel kernel;
+  std::unique_ptr<FrameBuffers> own_buffers;  // For callers that pass none.
 };
+
+FrameBufferSizes SliceRenderer::BufferSizes(const SliceView& view, const RenderParams& params) {
+  const uint64_t pixels =
+      std::max<uint64_t>(uint64_t(std::max(view.width, 0)) * uint64_t(std::max(view.height, 0)), 1);
+  const uint64_t channels = std::max<uint64_t>(params.channels.size(), 1);
+  FrameBufferSizes sizes{};
+  sizes[static_cast<size_t>(FrameBuffer::kImage)] = pixels * 4 * sizeof(float);
+  sizes[static_cast<size_t>(FrameBuffer::kChannels)] = channels * kChannelFloats * sizeof(float);
+  sizes[static_cast<size_t>(FrameBuffer::kLut)] = channels * kLutEntries * 4 * sizeof(float);
+  sizes[static_cast<size_t>(FrameBuffer::kCounter)] = sizeof(uint32_t);
+  return sizes;
+}
 
 SliceRenderer::~SliceRenderer() = default;
 
@@ -166,6 +179,7 @@ Result<std::unique_ptr<SliceRenderer>> SliceRenderer::Create(const ComputeContex
   std::unique_ptr<SliceRenderer> r(new SliceRenderer());
   r->impl_ = std::make_unique<Impl>();
   r->impl_->context = context;
+  r->impl_->own_buffers = std::make_unique<FrameBuffers>(context);
   OCTO_ASSIGN_OR_RETURN(r->impl_->kernel,
                         programs->CreateKernel("slice.cl", "RenderSlice", build_options));
   r->device_octree_ = device_octree;
@@ -179,7 +193,8 @@ Box3 SliceRenderer::bounds() const {
 }
 
 Result<RenderImage> SliceRenderer::Render(const SliceView& view, const RenderParams& params,
-                                          const SliceOptions& options, SliceStats* stats) {
+                                          const SliceOptions& options, SliceStats* stats,
+                                          FrameBuffers* buffers) {
   const auto start = std::chrono::steady_clock::now();
   const octree::BrickGeometry& geometry = device_octree_->geometry();
   OCTO_RETURN_IF_ERROR(ValidateView(view));
@@ -213,21 +228,21 @@ Result<RenderImage> SliceRenderer::Render(const SliceView& view, const RenderPar
   setup.height = view.height;
   setup.level = level;
 
-  // Per-render device buffers: channel parameters, LUTs, the image and the sample counter.
+  // Device buffers (the caller's, reused from frame to frame, or the renderer's own): channel
+  // parameters, LUTs, the image and the sample counter.
   std::vector<float> channel_floats, luts;
   PackChannels(params, &channel_floats, &luts);
-  OCTO_ASSIGN_OR_RETURN(ClMem channel_buffer,
-                        cx.CreateBuffer(CL_MEM_READ_ONLY, channel_floats.size() * sizeof(float),
-                                        channel_floats.data()));
-  OCTO_ASSIGN_OR_RETURN(
-      ClMem lut_buffer,
-      cx.CreateBuffer(CL_MEM_READ_ONLY, luts.size() * sizeof(float), luts.data()));
+  FrameBuffers& frame_buffers = buffers != nullptr ? *buffers : *impl_->own_buffers;
+  OCTO_RETURN_IF_ERROR(frame_buffers.Reserve(BufferSizes(view, params)));
+  const ClMem& channel_buffer = frame_buffers.handle(FrameBuffer::kChannels);
+  const ClMem& lut_buffer = frame_buffers.handle(FrameBuffer::kLut);
+  const ClMem& image_buffer = frame_buffers.handle(FrameBuffer::kImage);
+  const ClMem& counter_buffer = frame_buffers.handle(FrameBuffer::kCounter);
+  OCTO_RETURN_IF_ERROR(cx.WriteBuffer(channel_buffer, 0, channel_floats.size() * sizeof(float),
+                                      channel_floats.data()));
+  OCTO_RETURN_IF_ERROR(cx.WriteBuffer(lut_buffer, 0, luts.size() * sizeof(float), luts.data()));
   const size_t pixels = static_cast<size_t>(view.width) * static_cast<size_t>(view.height);
-  OCTO_ASSIGN_OR_RETURN(ClMem image_buffer,
-                        cx.CreateBuffer(CL_MEM_WRITE_ONLY, pixels * 4 * sizeof(float)));
   const uint32_t zero = 0;
-  OCTO_ASSIGN_OR_RETURN(ClMem counter_buffer,
-                        cx.CreateBuffer(CL_MEM_READ_WRITE, sizeof(uint32_t), &zero));
 
   SliceStats s;
   s.level = level;
@@ -265,6 +280,7 @@ Result<RenderImage> SliceRenderer::Render(const SliceView& view, const RenderPar
     UploadStats upload;
     OCTO_RETURN_IF_ERROR(device_octree_->Upload(requests, budget, &upload));
     s.bricks_uploaded += upload.uploaded;
+    s.bricks_unavailable += upload.unavailable;
     if (!options.converge || s.frames >= options.max_frames) break;
   }
 

@@ -47,9 +47,10 @@
 #include "render/camera.h"
 #include "render/device.h"
 #include "render/device_octree.h"
+#include "render/frame_buffers.h"
 #include "render/linear_algebra.h"
 #include "render/program_cache.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "util/result.h"
 #include "util/status.h"
@@ -103,10 +104,12 @@ struct SliceStats {
   int level = 0;                 // The level of detail sampled.
   bool converged = false;        // The last frame requested nothing (all wanted bricks used).
   uint64_t bricks_uploaded = 0;  // Over all frames.
-  uint64_t samples = 0;          // Channel reads (trilinear or averages), all frames.
-  uint64_t requests = 0;         // Node requests read back, all frames.
-  uint64_t last_samples = 0;     // Channel reads of the last frame.
-  uint64_t last_requests = 0;    // Node requests of the last frame.
+  // Bricks not uploaded because their page was not in RAM (non-blocking reads), all frames.
+  uint64_t bricks_unavailable = 0;
+  uint64_t samples = 0;        // Channel reads (trilinear or averages), all frames.
+  uint64_t requests = 0;       // Node requests read back, all frames.
+  uint64_t last_samples = 0;   // Channel reads of the last frame.
+  uint64_t last_requests = 0;  // Node requests of the last frame.
 };
 
 class SliceRenderer {
@@ -122,11 +125,17 @@ class SliceRenderer {
   SliceRenderer(const SliceRenderer&) = delete;
   SliceRenderer& operator=(const SliceRenderer&) = delete;
 
+  // The device buffers a frame of `view` with `params` uses (frame_buffers.h): exact, computed
+  // without allocating anything.
+  static FrameBufferSizes BufferSizes(const SliceView& view, const RenderParams& params);
+
   // Renders `view` (Sync, kernel, feedback, upload per frame; see the file comment). The image
   // is straight = premultiplied RGBA (alpha is 1 or the background's), row 0 = the smallest v.
-  // kInvalidArgument for an invalid view, params or options.
+  // kInvalidArgument for an invalid view, params or options. The device buffers come from
+  // `buffers` (a view's, reused from frame to frame) or, when null, from the renderer's own set.
   Result<RenderImage> Render(const SliceView& view, const RenderParams& params,
-                             const SliceOptions& options = {}, SliceStats* stats = nullptr);
+                             const SliceOptions& options = {}, SliceStats* stats = nullptr,
+                             FrameBuffers* buffers = nullptr);
 
   const Vec3& spacing() const { return spacing_; }
   // The volume box [0, size * spacing].

@@ -72,16 +72,32 @@ int ModeDefine(RenderMode mode) {
 // Everything the kernel needs besides the octree: the frame struct and the per-channel buffers.
 struct FrameInputs {
   OctoRenderFrame frame{};
-  ClMem channels;  // OctoChannelParams per enabled channel (at least one entry).
-  ClMem lut;       // float4 entries (at least one).
+  cl_mem channels = nullptr;  // OctoChannelParams per enabled channel (at least one entry).
+  cl_mem lut = nullptr;       // float4 entries (at least one).
   int active = 0;
 };
 
-// Converts camera and parameters to the kernel's voxel-space frame (render_format.h).
+// Enabled channels, and float entries of their LUTs.
+int ActiveChannels(const RenderParams& params) {
+  int active = 0;
+  for (const ChannelParams& cp : params.channels) active += cp.enabled ? 1 : 0;
+  return active;
+}
+size_t LutFloats(const RenderParams& params) {
+  size_t floats = 0;
+  for (const ChannelParams& cp : params.channels) {
+    if (cp.enabled && cp.lut) floats += 4 * kLutEntries;
+  }
+  return floats;
+}
+
+// Converts camera and parameters to the kernel's voxel-space frame (render_format.h), writing the
+// per-channel buffers into `buffers` (reserved by the caller with VolumeRenderer::BufferSizes).
 // REQUIRES: params validated for the volume.
 Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera& camera,
                                     const RenderParams& params, const FrameOptions& options,
-                                    const octree::BrickGeometry& geometry, const Vec3& spacing) {
+                                    const octree::BrickGeometry& geometry, const Vec3& spacing,
+                                    const FrameBuffers& buffers) {
   FrameInputs in;
   OctoRenderFrame& f = in.frame;
   const Vec3 inv{1 / spacing.x, 1 / spacing.y, 1 / spacing.z};
@@ -167,11 +183,13 @@ Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera&
   f.skip_empty = options.skip_empty_space ? 1 : 0;
   if (channels.empty()) channels.emplace_back();
   if (lut.empty()) lut.assign(4, 0.0f);
-  OCTO_ASSIGN_OR_RETURN(
-      in.channels, context.CreateBuffer(CL_MEM_READ_ONLY, channels.size() * sizeof(channels[0]),
-                                        channels.data()));
-  OCTO_ASSIGN_OR_RETURN(
-      in.lut, context.CreateBuffer(CL_MEM_READ_ONLY, lut.size() * sizeof(float), lut.data()));
+  const ClMem& channel_buffer = buffers.handle(FrameBuffer::kChannels);
+  const ClMem& lut_buffer = buffers.handle(FrameBuffer::kLut);
+  OCTO_RETURN_IF_ERROR(context.WriteBuffer(channel_buffer, 0, channels.size() * sizeof(channels[0]),
+                                           channels.data()));
+  OCTO_RETURN_IF_ERROR(context.WriteBuffer(lut_buffer, 0, lut.size() * sizeof(float), lut.data()));
+  in.channels = channel_buffer.get();
+  in.lut = lut_buffer.get();
   return in;
 }
 
@@ -196,6 +214,7 @@ struct VolumeRenderer::Impl {
   std::map<std::pair<int, bool>, ClKernel> kernels;
   ClMem counters;  // OCTO_COUNTER_WORDS uints, cleared before every pass.
   ClMem dummy;     // Stands in for the ray-state buffers of full frames.
+  std::unique_ptr<FrameBuffers> own_buffers;  // Full frames of callers that pass none.
 
   Result<cl_kernel> Kernel(RenderMode mode, bool refine) {
     const auto key = std::make_pair(ModeDefine(mode), refine);
@@ -213,9 +232,8 @@ struct VolumeRenderer::Impl {
   // Sets every argument and runs one pass over the width x height pixels; reads the counters back
   // (finished rays, samples). Adds the kernel time to stats.
   Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
-                 const ClMem& image, const ClMem& ray_next, const ClMem& ray_acc,
-                 const ClMem& ray_extreme, int width, int height, uint32_t* finished,
-                 uint64_t* samples, FrameStats* stats) {
+                 cl_mem image, cl_mem ray_next, cl_mem ray_acc, cl_mem ray_extreme, int width,
+                 int height, uint32_t* finished, uint64_t* samples, FrameStats* stats) {
     const uint32_t zeros[OCTO_COUNTER_WORDS] = {0, 0, 0, 0};
     OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
     const auto bricks = octree.brick_buffers();
@@ -266,6 +284,7 @@ struct VolumeRenderer::Impl {
     OCTO_RETURN_IF_ERROR(octree.Upload(requests, budget, &upload));
     stats->ms_upload += MsSince(start);
     stats->bricks_uploaded += upload.uploaded;
+    stats->bricks_unavailable += upload.unavailable;
     *upload_out = upload;
     return Status::Ok();
   }
@@ -275,10 +294,13 @@ struct Refinement::State {
   RenderMode mode = RenderMode::kDvr;
   FrameOptions options;
   FrameInputs inputs;
-  ClMem image;        // float4 per pixel.
-  ClMem ray_next;     // uint per pixel: next sample index or OCTO_RAY_DONE.
-  ClMem ray_acc;      // float4 per pixel (DVR).
-  ClMem ray_extreme;  // float per pixel and enabled channel (MIP/MinIP).
+  std::unique_ptr<FrameBuffers> own_buffers;  // When the caller passed none.
+  // The buffers below (and inputs') live in *buffers (the caller's or own_buffers).
+  FrameBuffers* buffers = nullptr;
+  cl_mem image = nullptr;        // float4 per pixel.
+  cl_mem ray_next = nullptr;     // uint per pixel: next sample index or OCTO_RAY_DONE.
+  cl_mem ray_acc = nullptr;      // float4 per pixel (DVR).
+  cl_mem ray_extreme = nullptr;  // float per pixel and enabled channel (MIP/MinIP).
   int width = 0;
   int height = 0;
   uint64_t finished = 0;
@@ -311,6 +333,7 @@ Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeCont
   OCTO_ASSIGN_OR_RETURN(r->impl_->counters,
                         context->CreateBuffer(CL_MEM_READ_WRITE, OCTO_COUNTER_WORDS * 4));
   OCTO_ASSIGN_OR_RETURN(r->impl_->dummy, context->CreateBuffer(CL_MEM_READ_WRITE, 16));
+  r->impl_->own_buffers = std::make_unique<FrameBuffers>(context);
   r->device_octree_ = device_octree;
   r->spacing_ = spacing_um;
   // The default mode's full-frame program is built now, so a broken kernel fails early.
@@ -334,10 +357,30 @@ Status AllocateImage(RenderImage* image, size_t pixels) {
 
 }  // namespace
 
+FrameBufferSizes VolumeRenderer::BufferSizes(FrameMode mode, const RenderParams& params, int width,
+                                             int height) {
+  const uint64_t pixels = uint64_t(std::max(width, 0)) * uint64_t(std::max(height, 0));
+  const uint64_t active = std::max(1, ActiveChannels(params));
+  FrameBufferSizes sizes{};
+  const auto at = [&sizes](FrameBuffer b) -> uint64_t& { return sizes[static_cast<size_t>(b)]; };
+  at(FrameBuffer::kImage) = std::max<uint64_t>(pixels, 1) * 4 * sizeof(float);
+  at(FrameBuffer::kChannels) = active * sizeof(OctoChannelParams);
+  at(FrameBuffer::kLut) = std::max<size_t>(LutFloats(params), 4) * sizeof(float);
+  if (mode == FrameMode::kRefine) {
+    at(FrameBuffer::kRayNext) = std::max<uint64_t>(pixels, 1) * sizeof(uint32_t);
+    if (params.mode == RenderMode::kDvr) {
+      at(FrameBuffer::kRayAccumulator) = std::max<uint64_t>(pixels, 1) * 4 * sizeof(float);
+    } else {
+      at(FrameBuffer::kRayExtreme) = std::max<uint64_t>(pixels, 1) * active * sizeof(float);
+    }
+  }
+  return sizes;
+}
+
 Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
                                                     const RenderParams& params,
-                                                    const FrameOptions& options,
-                                                    FrameStats* stats) {
+                                                    const FrameOptions& options, FrameStats* stats,
+                                                    FrameBuffers* buffers) {
   const Clock::time_point start = Clock::now();
   DeviceOctree& octree = *device_octree_;
   OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
@@ -350,20 +393,23 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   if (const auto it = view_lod_.find(options.view); it != view_lod_.end()) lod = it->second;
   if (options.target_frame_ms <= 0) lod.time_bias = 0;
   frame_options.lod_bias += lod.pressure_bias + lod.time_bias;
-  OCTO_ASSIGN_OR_RETURN(
-      FrameInputs in,
-      MakeFrameInputs(*impl_->context, camera, params, frame_options, octree.geometry(), spacing_));
+  // The frame's device buffers: the caller's (reused from frame to frame) or the renderer's own.
+  FrameBuffers& frame_buffers = buffers != nullptr ? *buffers : *impl_->own_buffers;
+  OCTO_RETURN_IF_ERROR(frame_buffers.Reserve(
+      BufferSizes(FrameMode::kFullFrame, params, camera.width(), camera.height())));
+  OCTO_ASSIGN_OR_RETURN(FrameInputs in,
+                        MakeFrameInputs(*impl_->context, camera, params, frame_options,
+                                        octree.geometry(), spacing_, frame_buffers));
   // Nodes first (construction may have moved on), then the frame's feedback.
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
   const size_t pixels = static_cast<size_t>(camera.width()) * camera.height();
-  OCTO_ASSIGN_OR_RETURN(
-      ClMem image, impl_->context->CreateBuffer(CL_MEM_WRITE_ONLY, pixels * 4 * sizeof(float)));
+  const ClMem& image = frame_buffers.handle(FrameBuffer::kImage);
   uint32_t finished = 0;
   uint64_t samples = 0;
-  OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, in, frame, image, impl_->dummy, impl_->dummy,
-                                      impl_->dummy, camera.width(), camera.height(), &finished,
-                                      &samples, &local));
+  OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, in, frame, image.get(), impl_->dummy.get(),
+                                      impl_->dummy.get(), impl_->dummy.get(), camera.width(),
+                                      camera.height(), &finished, &samples, &local));
   RenderImage out;
   out.width = camera.width();
   out.height = camera.height();
@@ -416,7 +462,8 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
 
 Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera& camera,
                                                                     const RenderParams& params,
-                                                                    const FrameOptions& options) {
+                                                                    const FrameOptions& options,
+                                                                    FrameBuffers* buffers) {
   DeviceOctree& octree = *device_octree_;
   OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
   if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
@@ -431,35 +478,44 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
   r->stats_.lod_bias_used = options.lod_bias;
   s.width = camera.width();
   s.height = camera.height();
+  if (buffers == nullptr) {
+    s.own_buffers = std::make_unique<FrameBuffers>(impl_->context);
+    buffers = s.own_buffers.get();
+  }
+  s.buffers = buffers;
+  OCTO_RETURN_IF_ERROR(
+      buffers->Reserve(BufferSizes(FrameMode::kRefine, params, s.width, s.height)));
   OCTO_ASSIGN_OR_RETURN(s.inputs, MakeFrameInputs(*impl_->context, camera, params, options,
-                                                  octree.geometry(), spacing_));
+                                                  octree.geometry(), spacing_, *buffers));
   const size_t pixels = static_cast<size_t>(s.width) * s.height;
   const ComputeContext& ctx = *impl_->context;
   // Ray state is initialised on the device (no host copies: a 16384^2 refinement must not
   // need gigabytes of host memory). Unprocessed pixels show the background until their ray ran.
-  const auto filled = [&ctx](size_t count, const void* pattern, size_t pattern_bytes,
-                             ClMem* out) -> Status {
-    OCTO_ASSIGN_OR_RETURN(*out, ctx.CreateBuffer(CL_MEM_READ_WRITE, count * pattern_bytes));
-    OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(ctx.queue(), out->get(), pattern, pattern_bytes, 0,
+  const auto fill = [&ctx, buffers](FrameBuffer which, size_t count, const void* pattern,
+                                    size_t pattern_bytes, cl_mem* out) -> Status {
+    *out = buffers->get(which);
+    OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(ctx.queue(), *out, pattern, pattern_bytes, 0,
                                                 count * pattern_bytes, 0, nullptr, nullptr));
     return Status::Ok();
   };
   const float* bg = s.inputs.frame.background;
-  OCTO_RETURN_IF_ERROR(filled(pixels, bg, 4 * sizeof(float), &s.image));
+  OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kImage, pixels, bg, 4 * sizeof(float), &s.image));
   const uint32_t zero = 0;
-  OCTO_RETURN_IF_ERROR(filled(pixels, &zero, sizeof(zero), &s.ray_next));
+  OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kRayNext, pixels, &zero, sizeof(zero), &s.ray_next));
   if (params.mode == RenderMode::kDvr) {
     const float none = 0.0f;
-    OCTO_RETURN_IF_ERROR(filled(pixels * 4, &none, sizeof(none), &s.ray_acc));
-    OCTO_ASSIGN_OR_RETURN(s.ray_extreme, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
+    OCTO_RETURN_IF_ERROR(
+        fill(FrameBuffer::kRayAccumulator, pixels * 4, &none, sizeof(none), &s.ray_acc));
+    s.ray_extreme = impl_->dummy.get();
   } else {
     // Stored-value extrema; "not sampled" lies outside [0, 65535]: below for maxima, above for
     // minima.
     const float init =
         params.mode == RenderMode::kMip ? -1.0f : std::numeric_limits<float>::infinity();
-    OCTO_RETURN_IF_ERROR(filled(pixels * static_cast<size_t>(std::max(1, s.inputs.active)), &init,
-                                sizeof(init), &s.ray_extreme));
-    OCTO_ASSIGN_OR_RETURN(s.ray_acc, ctx.CreateBuffer(CL_MEM_READ_WRITE, 16));
+    OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kRayExtreme,
+                              pixels * static_cast<size_t>(std::max(1, s.inputs.active)), &init,
+                              sizeof(init), &s.ray_extreme));
+    s.ray_acc = impl_->dummy.get();
   }
   OCTO_RETURN_IF_ERROR(ctx.Finish());
   return r;
@@ -488,6 +544,8 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   UploadStats upload;
   OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &upload));
   const uint64_t uploaded = upload.uploaded;
+  // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
+  const bool waiting = upload.unavailable > 0 || upload.deferred > 0;
   s.finished += finished;
   stats.passes += 1;
   stats.samples += samples;
@@ -497,10 +555,11 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   stats.final = s.finished >= pixels;
   stats.ms_total += MsSince(start);
   // Every unfinished ray waits for a brick: a pass that neither advanced a ray nor uploaded
-  // anything will never progress (nor will endlessly many that keep uploading in vain).
-  if (finished == 0 && samples == 0 && !stats.final) {
+  // anything, with nothing left waiting, will never progress (nor will endlessly many that keep
+  // uploading in vain). Passes that wait for the disk do not count: the disk sets their pace.
+  if (finished == 0 && samples == 0 && !stats.final && upload.unavailable == 0) {
     ++s.stalled_passes;
-    s.stalled_without_upload = uploaded == 0 ? s.stalled_without_upload + 1 : 0;
+    s.stalled_without_upload = uploaded == 0 && !waiting ? s.stalled_without_upload + 1 : 0;
     // One pass without an upload can happen while construction changes the tree between Sync
     // and Upload (a wanted node lost its brick); the next Sync sees it. Three in a row cannot.
     if (s.stalled_without_upload >= 3 || s.stalled_passes > 1000) {
@@ -508,7 +567,7 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
                            " rays wait for bricks that cannot be made resident (" +
                            std::to_string(octree.slot_count()) + " brick slots)");
     }
-  } else {
+  } else if (finished != 0 || samples != 0) {
     s.stalled_passes = 0;
     s.stalled_without_upload = 0;
   }
@@ -522,8 +581,8 @@ Result<RenderImage> VolumeRenderer::ReadImage(const Refinement& refinement) {
   out.width = s.width;
   out.height = s.height;
   OCTO_RETURN_IF_ERROR(AllocateImage(&out, static_cast<size_t>(s.width) * s.height));
-  OCTO_RETURN_IF_ERROR(
-      impl_->context->ReadBuffer(s.image, 0, out.rgba.size() * sizeof(float), out.rgba.data()));
+  OCTO_RETURN_IF_ERROR(impl_->context->ReadBuffer(
+      s.buffers->handle(FrameBuffer::kImage), 0, out.rgba.size() * sizeof(float), out.rgba.data()));
   return out;
 }
 

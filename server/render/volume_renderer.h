@@ -65,9 +65,10 @@
 #include "render/camera.h"
 #include "render/device.h"
 #include "render/device_octree.h"
+#include "render/frame_buffers.h"
 #include "render/linear_algebra.h"
 #include "render/program_cache.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "util/result.h"
 #include "util/status.h"
@@ -105,6 +106,8 @@ struct FrameStats {
   uint64_t samples = 0;   // Channel samples taken (trilinear reads or averages), all passes.
   uint64_t requests = 0;  // Node requests read back, all passes.
   uint64_t bricks_uploaded = 0;
+  // Bricks not uploaded because their page was not in RAM (non-blocking brick reads), all passes.
+  uint64_t bricks_unavailable = 0;
   double finished_fraction = 0;       // Rays finished after the last pass (full frame: 1).
   bool final = false;                 // Refinement complete at the level the screen needs.
   std::vector<double> pass_finished;  // finished_fraction after each pass.
@@ -148,15 +151,25 @@ class VolumeRenderer {
   VolumeRenderer(const VolumeRenderer&) = delete;
   VolumeRenderer& operator=(const VolumeRenderer&) = delete;
 
-  // One full-frame pass (Sync, kernel, read image and feedback, upload for the next frame).
-  // Errors when params are invalid for the volume.
-  Result<RenderImage> RenderFullFrame(const Camera& camera, const RenderParams& params,
-                                      const FrameOptions& options, FrameStats* stats = nullptr);
+  // The device buffers a frame (kFullFrame) or a refinement (kRefine) of width x height pixels
+  // with `params` uses (frame_buffers.h): exact, computed without allocating anything.
+  static FrameBufferSizes BufferSizes(FrameMode mode, const RenderParams& params, int width,
+                                      int height);
 
-  // Starts a refinement (allocates the ray state; runs no pass).
+  // One full-frame pass (Sync, kernel, read image and feedback, upload for the next frame).
+  // Errors when params are invalid for the volume. The device buffers come from `buffers` (a
+  // view's, reused from frame to frame) or, when null, from the renderer's own set.
+  Result<RenderImage> RenderFullFrame(const Camera& camera, const RenderParams& params,
+                                      const FrameOptions& options, FrameStats* stats = nullptr,
+                                      FrameBuffers* buffers = nullptr);
+
+  // Starts a refinement (reserves the ray state; runs no pass). Its device state lives in
+  // `buffers`, which must then outlive the refinement and not be used by another frame before it
+  // ends; when null, the refinement owns its buffers.
   Result<std::unique_ptr<Refinement>> StartRefinement(const Camera& camera,
                                                       const RenderParams& params,
-                                                      const FrameOptions& options);
+                                                      const FrameOptions& options,
+                                                      FrameBuffers* buffers = nullptr);
   // One pass over the unfinished rays, then the upload of what they requested. Returns the
   // fraction of finished rays (1 = complete). Adds to refinement's stats.
   Result<double> RefinePass(Refinement& refinement);
@@ -181,8 +194,8 @@ class VolumeRenderer {
   // Per view (FrameOptions::view) adaptive state of full frames (see the file comment); views
   // whose state is all zero are erased.
   struct ViewLod {
-    int pressure_bias = 0;   // Brick-buffer pressure: 0..root level.
-    double time_bias = 0;    // Frame-time target: 0..root level, fractional.
+    int pressure_bias = 0;  // Brick-buffer pressure: 0..root level.
+    double time_bias = 0;   // Frame-time target: 0..root level, fractional.
   };
   std::map<uint64_t, ViewLod> view_lod_;
   Vec3 spacing_;

@@ -10,6 +10,10 @@ void FramePolicy::OnChange(uint64_t version, Clock::time_point now) {
   last_change_ = now;
 }
 
+void FramePolicy::OnDataChange(uint64_t version) {
+  if (version > version_) version_ = version;
+}
+
 void FramePolicy::OnInteraction(bool active, Clock::time_point now) {
   interacting_ = active;
   last_change_ = now;

@@ -45,6 +45,10 @@ class FramePolicy {
 
   // What the view shows changed (a new state version, or new data).
   void OnChange(uint64_t version, Clock::time_point now);
+  // New data arrived (the same state shows more). Unlike OnChange it does not restart the quiet
+  // period: a quiet view goes straight to a new refinement (its first pass already shows the new
+  // data at full resolution), an interacting one gets it in its next interactive frame.
+  void OnDataChange(uint64_t version);
   void OnInteraction(bool active, Clock::time_point now);
   // The frame of order `sequence` was rendered (or failed: rendered = false). For an
   // interactive frame, `render_ms` adapts the scale. Results of superseded orders are ignored.

@@ -16,9 +16,10 @@ Status Errno(const std::filesystem::path& path, const char* step) {
 
 }  // namespace
 
-Status WriteFileDurably(const std::filesystem::path& path, std::string_view content) {
+Status WriteFileDurably(const std::filesystem::path& path, std::string_view content,
+                        std::string_view temp_suffix) {
   std::filesystem::path tmp = path;
-  tmp += ".tmp";
+  tmp += temp_suffix;
   int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) return Errno(tmp, "open");
   // Write everything, retrying short writes and interrupted calls.

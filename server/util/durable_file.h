@@ -15,7 +15,10 @@
 namespace octoscope {
 
 // Replaces `path` atomically with `content`. Errors name the file and the failing step.
-Status WriteFileDurably(const std::filesystem::path& path, std::string_view content);
+// `temp_suffix` names the temporary file (<path><temp_suffix>); writers that may race on one
+// path from several processes give each process its own suffix.
+Status WriteFileDurably(const std::filesystem::path& path, std::string_view content,
+                        std::string_view temp_suffix = ".tmp");
 
 // fsync()s a directory, making renames and removals inside it durable.
 Status SyncDirectory(const std::filesystem::path& dir);

@@ -24,6 +24,8 @@ enum class StatusCode {
   kCancelled,          // The operation was stopped on request.
   kInternal,           // A bug: an invariant of ours does not hold.
   kUnavailable,        // Held by another process (a locked cache directory); may work later.
+  // The object's state does not allow the operation (a slab for a finished acquisition).
+  kFailedPrecondition,
 };
 
 std::string_view StatusCodeName(StatusCode code);
@@ -60,6 +62,7 @@ Status ResourceExhaustedError(std::string message);
 Status CancelledError(std::string message);
 Status InternalError(std::string message);
 Status UnavailableError(std::string message);
+Status FailedPreconditionError(std::string message);
 
 // Returns from the enclosing function when `expr` (a Status) is not OK.
 #define OCTO_RETURN_IF_ERROR(expr)               \

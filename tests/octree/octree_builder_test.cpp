@@ -5,12 +5,13 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cstring>
 #include <filesystem>
+#include <mutex>
 #include <stdexcept>
 #include <stop_token>
 #include <thread>
-#include <chrono>
 #include <vector>
 
 #include "io/volume_source.h"
@@ -167,6 +168,44 @@ TEST(OctreeBuilderTest, CancellationAndThrowingCallbacksEndTheBuildCleanly) {
     EXPECT_EQ(st.code(), StatusCode::kInternal) << st.ToString();
     EXPECT_NE(st.message().find("callback failed"), std::string::npos);
   }
+}
+
+// on_slab sees every plane of every channel exactly once, in the stored type, from the reader
+// threads; a throwing hook fails the build.
+TEST(OctreeBuilderTest, OnSlabSeesEveryStoredPlaneOnce) {
+  const Vec3 size{30, 20, 23};
+  const SourceVolume src = MakePatternVolume(size, 2, 2, 5);
+  MemorySource source(src, volume::DataType::kInt16);  // Converted: the hook sees stored values.
+  const std::vector<volume::ValueMap> maps(2, volume::FixedValueMap(volume::DataType::kInt16));
+  OctreeOptions options;
+  options.brick_size = {8, 8, 4};
+  const auto params = testing::Params(size, options.brick_size, 2, 2);
+  TreeFixture f = TreeFixture::Make(params, options);
+  std::mutex mu;
+  std::vector<int> seen(2 * size[2], 0);
+  std::vector<std::vector<uint16_t>> stored(2, std::vector<uint16_t>(src.data[0].size()));
+  const size_t plane = static_cast<size_t>(size[0] * size[1]);
+  BuildOptions b;
+  b.threads = 3;
+  b.slab_planes = 2;
+  b.on_slab = [&](int c, int64_t z0, int64_t nz, std::span<const std::byte> data) {
+    std::lock_guard lock(mu);
+    ASSERT_EQ(data.size(), static_cast<size_t>(nz) * plane * 2);
+    for (int64_t z = z0; z < z0 + nz; ++z) ++seen[c * size[2] + z];
+    std::memcpy(stored[c].data() + static_cast<size_t>(z0) * plane, data.data(), data.size());
+  };
+  Status st = BuildOctree(source, maps, *f.tree, b);
+  ASSERT_TRUE(st.ok()) << st.ToString();
+  for (int n : seen) EXPECT_EQ(n, 1);
+  EXPECT_EQ(stored, src.data);  // int16 file values converted back to the pattern.
+
+  TreeFixture g = TreeFixture::Make(params, options);
+  b.on_slab = [](int, int64_t, int64_t, std::span<const std::byte>) {
+    throw std::runtime_error("hook failed");
+  };
+  st = BuildOctree(source, maps, *g.tree, b);
+  EXPECT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("hook failed"), std::string::npos) << st.ToString();
 }
 
 TEST(OctreeBuilderTest, SlabPlanesPrefersDivisorsOfTheBrickDepth) {

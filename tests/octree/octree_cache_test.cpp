@@ -95,6 +95,23 @@ TEST_F(OctreeCacheLockTest, ASecondBuilderIsRefusedAndTouchesNothing) {
   EXPECT_TRUE((*again)->reused());
 }
 
+// A committed build only serves the directory: its lock becomes shared, so other holders may
+// reuse the cache while the builder still uses it (a server keeps serving what it built), but
+// nobody may rebuild it.
+TEST_F(OctreeCacheLockTest, ACommittedBuildSharesTheDirectory) {
+  auto builder = Open(1);
+  ASSERT_TRUE(builder.ok()) << builder.status().ToString();
+  ASSERT_FALSE((*builder)->reused());
+  ASSERT_TRUE((*builder)->Commit().ok());
+  auto reader = Open(1);
+  ASSERT_TRUE(reader.ok()) << reader.status().ToString();
+  EXPECT_TRUE((*reader)->reused());
+  auto rebuild = Open(2);
+  ASSERT_FALSE(rebuild.ok());
+  ExpectUnavailable(rebuild.status(), dir_, "in use by another process");
+  EXPECT_TRUE(fs::exists(dir_ / "MANIFEST"));
+}
+
 TEST_F(OctreeCacheLockTest, ReadersShareACompleteCacheAndBlockItsRebuild) {
   BuildComplete();
   const std::string manifest = dir_ / "MANIFEST";

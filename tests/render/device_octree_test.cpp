@@ -114,6 +114,17 @@ std::unique_ptr<DeviceOctree> MakeDevice(Octree* tree, const DeviceOctreeOptions
   return dev.ok() ? std::move(*dev) : nullptr;
 }
 
+// A mirror of `tree` with exactly 8 brick slots (kMinBrickSlots).
+std::unique_ptr<DeviceOctree> MakeEightSlotDevice(Octree* tree) {
+  DeviceOctreeOptions options;
+  options.brick_buffer_bytes = 8 * tree->geometry().brick_samples() * 2;
+  auto dev = MakeDevice(tree, options);
+  if (dev != nullptr) {
+    EXPECT_EQ(dev->slot_count(), 8u);
+  }
+  return dev;
+}
+
 // Every live node reachable from the root, found by KEY (not by child-group ids).
 std::vector<NodeSnapshot> NodesByKey(const Octree& tree) {
   std::vector<NodeSnapshot> out;
@@ -577,11 +588,8 @@ TEST(DeviceOctreeTest, EvictsLeastRecentlyUsedAndNeverProtectedOrFreshSlots) {
   auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
   ASSERT_NE(scene, nullptr);
   const Octree& tree = *scene->tree;
-  DeviceOctreeOptions options;
-  options.brick_buffer_bytes = 8 * tree.geometry().brick_samples() * 2;
-  auto dev = MakeDevice(scene->tree.get(), options);
+  auto dev = MakeEightSlotDevice(scene->tree.get());
   ASSERT_NE(dev, nullptr);
-  ASSERT_EQ(dev->slot_count(), 8u);
   const int root = tree.geometry().root_level();
   // A: the root and 7 of its children (a closed chain: no ancestors to add).
   std::vector<uint32_t> a = {0};
@@ -839,6 +847,190 @@ TEST(DeviceOctreeTest, RejectsABrickBufferThatNeedsTooManyAllocations) {
   dev = DeviceOctree::Create(&Cc(), scene->tree.get(), options);
   ASSERT_TRUE(dev.ok()) << dev.status().ToString();
   EXPECT_EQ((*dev)->allocation_count(), kMaxBrickAllocations);
+}
+
+TEST(DeviceOctreeTest, ReservedBricksSurviveOtherOwnersUploads) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  auto dev = MakeEightSlotDevice(scene->tree.get());
+  ASSERT_NE(dev, nullptr);
+  const int root = tree.geometry().root_level();
+  const std::vector<NodeSnapshot> level2 = Bricked(tree, root - 1);
+  ASSERT_EQ(level2.size(), 8u);
+  // Owner 1 asks for four level-2 nodes: they and their ancestor (the root) are uploaded; the
+  // four requested ones are reserved (the cap is 8 / (1 owner + 1) = 4), the root is not.
+  const std::vector<uint32_t> owned = {level2[0].id, level2[1].id, level2[2].id, level2[3].id};
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.reserve_for = 1;
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload(owned, budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 5u);
+  EXPECT_EQ(stats.reserved, 4u);
+  EXPECT_EQ(dev->reserved_slots(), 4u);
+  // An upload without owner that may evict everything else (protect nothing) needs more slots
+  // than there are: it gets the 3 free ones and the root's, never a reserved one.
+  std::vector<uint32_t> children;
+  for (uint32_t parent : owned) {
+    const NodeSnapshot p = *tree.GetNode(parent);
+    for (uint32_t o = 0; o < 8 && children.size() < 8; ++o) {
+      const auto child = tree.GetNode(p.child_group * 8 + o);
+      if (child.has_value() && child->has_brick()) children.push_back(child->id);
+    }
+  }
+  ASSERT_EQ(children.size(), 8u);
+  UploadBudget anyone;
+  anyone.max_ms = kNoTimeLimit;
+  anyone.protect_frame = std::numeric_limits<uint32_t>::max();
+  ASSERT_TRUE(dev->Upload(children, anyone, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 4u);
+  EXPECT_EQ(stats.evicted, 1u);
+  EXPECT_EQ(stats.deferred, 4u);
+  EXPECT_EQ(stats.reserved, 0u);
+  EXPECT_FALSE(dev->SlotOf(0).has_value());  // The root was not reserved.
+  for (uint32_t id : owned) EXPECT_TRUE(dev->SlotOf(id).has_value()) << id;
+  // Owner 2: its cap is 8 / (2 owners + 1) = 2 of the three nodes it uploads.
+  const std::vector<uint32_t> second = {level2[4].id, level2[5].id, level2[6].id};
+  budget.reserve_for = 2;
+  budget.protect_frame = std::numeric_limits<uint32_t>::max();
+  ASSERT_TRUE(dev->Upload(second, budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 4u);  // With the root (their ancestor), over the unreserved slots.
+  EXPECT_EQ(stats.evicted, 4u);
+  EXPECT_EQ(stats.reserved, 2u);
+  EXPECT_EQ(dev->reserved_slots(), 6u);
+  // Owner 1's next upload releases its reservation first (its pass has used those bricks).
+  budget.reserve_for = 1;
+  ASSERT_TRUE(dev->Upload({}, budget, &stats).ok());
+  EXPECT_EQ(dev->reserved_slots(), 2u);
+  // Now an upload without owner may evict owner 1's bricks but not owner 2's.
+  std::vector<uint32_t> reserved_by_2;
+  for (uint32_t id : second) {
+    if (dev->SlotOf(id).has_value()) reserved_by_2.push_back(id);
+  }
+  ASSERT_EQ(reserved_by_2.size(), 3u);
+  std::vector<uint32_t> many;
+  for (const NodeSnapshot& n : Bricked(tree, root - 2)) {
+    if (!dev->SlotOf(n.id).has_value()) many.push_back(n.id);
+  }
+  ASSERT_GE(many.size(), 8u);
+  ASSERT_TRUE(dev->Upload(many, anyone, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 6u);
+  int survivors = 0;
+  for (uint32_t id : reserved_by_2) survivors += dev->SlotOf(id).has_value() ? 1 : 0;
+  EXPECT_EQ(survivors, 2);
+  for (uint32_t id : owned) EXPECT_FALSE(dev->SlotOf(id).has_value()) << id;
+  dev->ReleaseReservations(2);
+  EXPECT_EQ(dev->reserved_slots(), 0u);
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 1),
+      -1);
+}
+
+TEST(DeviceOctreeTest, ResidentOnlyReadsNeverLoadAPageAndNameTheMissingOnes) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = NoiseSpec(volume::DataType::kUint16, 1);
+  spec.page_bytes = 4 * 8 * 8 * 8 * 2;  // Four bricks per page.
+  auto scene = Scene(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  paging::PageCache& cache = *scene->cache;
+  // Nothing in RAM: written back, then dropped.
+  ASSERT_TRUE(tree.Flush().ok());
+  ASSERT_TRUE(cache.SetBudget(0).ok());
+  ASSERT_TRUE(cache.SetBudget(uint64_t{1} << 30).ok());
+  ASSERT_EQ(cache.stats().resident_bytes, 0u);
+  DeviceOctreeOptions options;
+  options.brick_reads = BrickReads::kResidentOnly;
+  auto dev = MakeDevice(&tree, options);
+  ASSERT_NE(dev, nullptr);
+  const int root = tree.geometry().root_level();
+  std::vector<uint32_t> wanted = Ids(Bricked(tree, root - 1));
+  wanted.push_back(0);
+  // The pages those bricks live on, as the octree names them.
+  std::set<uint64_t> pages;
+  std::vector<std::byte> raw(tree.geometry().brick_bytes());
+  for (uint32_t id : wanted) {
+    uint64_t page = 0;
+    ASSERT_EQ(tree.TryReadBrick(id, raw, &page).code(), StatusCode::kUnavailable);
+    pages.insert(page);
+  }
+  const uint64_t misses = cache.stats().misses;
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload(wanted, budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 0u);
+  EXPECT_EQ(stats.unavailable, wanted.size());
+  EXPECT_EQ(dev->resident_bricks(), 0u);
+  EXPECT_EQ(cache.stats().misses, misses);  // No load was started.
+  const std::vector<uint64_t> missing = dev->TakeMissingPages();
+  EXPECT_EQ(std::set<uint64_t>(missing.begin(), missing.end()), pages);
+  EXPECT_EQ(missing.size(), pages.size());  // Each page once.
+  EXPECT_TRUE(dev->TakeMissingPages().empty());
+  // Once the pages are in RAM the same upload brings every brick.
+  for (uint64_t page : pages) ASSERT_TRUE(cache.Pin(page).ok());
+  ASSERT_TRUE(dev->Upload(wanted, budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, wanted.size());
+  EXPECT_EQ(stats.unavailable, 0u);
+  EXPECT_TRUE(dev->TakeMissingPages().empty());
+  for (uint32_t id : wanted) {
+    ASSERT_TRUE(dev->SlotOf(id).has_value());
+    EXPECT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), HostBrick(tree, id)) << id;
+  }
+}
+
+TEST(DeviceOctreeTest, ResizingTheBrickBufferDropsResidencyAndKeepsWorking) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  const uint64_t brick = tree.geometry().brick_samples() * 2;
+  // 48 x 40 x 48 voxels in 8^3 bricks: 6*5*6 + 3*3*3 + 2*2*2 + 1 nodes can ever own a brick.
+  EXPECT_EQ(DeviceOctree::MaxBrickBufferBytes(tree.geometry()), 216 * brick);
+  DeviceOctreeOptions options;
+  options.brick_buffer_bytes = 8 * brick;
+  auto dev = MakeDevice(scene->tree.get(), options);
+  ASSERT_NE(dev, nullptr);
+  const int root = tree.geometry().root_level();
+  const std::vector<uint32_t> level2 = Ids(Bricked(tree, root - 1));
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.reserve_for = 7;
+  ASSERT_TRUE(dev->Upload(level2, budget, nullptr).ok());
+  ASSERT_EQ(dev->resident_bricks(), 8u);
+  ASSERT_GT(dev->reserved_slots(), 0u);
+  // The same size: nothing changes.
+  ASSERT_TRUE(dev->ResizeBrickBuffer(8 * brick + brick / 2).ok());
+  EXPECT_EQ(dev->resident_bricks(), 8u);
+  // Twice as many slots: no brick is resident any more (and the entries say so).
+  ASSERT_TRUE(dev->ResizeBrickBuffer(16 * brick).ok());
+  EXPECT_EQ(dev->slot_count(), 16u);
+  EXPECT_EQ(dev->brick_buffer_bytes(), 16 * brick);
+  EXPECT_EQ(dev->resident_bricks(), 0u);
+  EXPECT_EQ(dev->reserved_slots(), 0u);
+  EXPECT_EQ(FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity()), 1), -1);
+  // It fills the new slots with the right bytes.
+  std::vector<uint32_t> wanted = level2;
+  for (const NodeSnapshot& n : Bricked(tree, root - 2)) {
+    if (wanted.size() < 15) wanted.push_back(n.id);
+  }
+  wanted.push_back(0);
+  ASSERT_TRUE(dev->UploadAll(wanted, 0).ok());
+  EXPECT_EQ(dev->resident_bricks(), 16u);
+  for (uint32_t id : wanted) {
+    ASSERT_TRUE(dev->SlotOf(id).has_value()) << id;
+    EXPECT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), HostBrick(tree, id)) << id;
+  }
+  EXPECT_EQ(
+      FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 1),
+      -1);
+  // More than the tree can use is clamped; fewer than kMinBrickSlots is raised.
+  ASSERT_TRUE(dev->ResizeBrickBuffer(uint64_t{1} << 40).ok());
+  EXPECT_EQ(dev->slot_count(), 216u);
+  ASSERT_TRUE(dev->ResizeBrickBuffer(1).ok());
+  EXPECT_EQ(dev->slot_count(), kMinBrickSlots);
 }
 
 }  // namespace

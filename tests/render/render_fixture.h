@@ -39,6 +39,8 @@ struct SceneSpec {
       [](int, int64_t, int64_t, int64_t) -> uint16_t { return 0; };
   // Block depth (planes) of the inserts; 0 = the whole volume at once per channel.
   int64_t insert_planes = 0;
+  // Bytes per page of the brick pool's store; 0 = max(8 bricks, 1 MiB).
+  uint64_t page_bytes = 0;
 };
 
 struct RenderScene {
@@ -88,11 +90,13 @@ inline Result<std::unique_ptr<RenderScene>> MakeRenderScene(const SceneSpec& spe
   options.brick_size = spec.brick;
   options.homogeneity_threshold = spec.threshold;
   scene->store = std::make_unique<paging::MemoryPageStore>(
-      std::max<uint64_t>(geometry.brick_bytes() * 8, uint64_t{1} << 20));
+      spec.page_bytes != 0 ? spec.page_bytes
+                           : std::max<uint64_t>(geometry.brick_bytes() * 8, uint64_t{1} << 20));
   scene->cache = std::make_unique<paging::PageCache>(scene->store.get(), uint64_t{1} << 30);
   OCTO_ASSIGN_OR_RETURN(scene->tree, octree::Octree::Create(geometry, options, scene->cache.get()));
   const auto& n = spec.size;
-  scene->voxels.assign(spec.channels, std::vector<uint16_t>(static_cast<size_t>(n[0] * n[1] * n[2])));
+  scene->voxels.assign(spec.channels,
+                       std::vector<uint16_t>(static_cast<size_t>(n[0] * n[1] * n[2])));
   for (int c = 0; c < spec.channels; ++c) {
     size_t i = 0;
     for (int64_t z = 0; z < n[2]; ++z)

@@ -134,5 +134,35 @@ TEST_F(FramePolicyTest, InvalidateRendersTheSameVersionAgain) {
   EXPECT_EQ(again->version, 1u);
 }
 
+TEST_F(FramePolicyTest, NewDataRefinesAQuietViewAtOnceAndWaitsForAnInteractiveFrame) {
+  FramePolicy p;
+  p.OnChange(1, At(0));
+  auto first = p.Poll(At(0));
+  ASSERT_TRUE(first.has_value());
+  p.OnFrameDone(first->sequence, true, 20);
+  auto refine = p.Poll(At(200));
+  ASSERT_TRUE(refine.has_value() && refine->refine);
+  // Data arrives during the refinement: a new refinement supersedes it at once (no quiet wait,
+  // no interactive frame in between).
+  p.OnDataChange(2);
+  auto again = p.Poll(At(210));
+  ASSERT_TRUE(again.has_value());
+  EXPECT_TRUE(again->refine);
+  EXPECT_EQ(again->version, 2u);
+  // While the user interacts, new data waits for the interactive frame in flight.
+  p.OnInteraction(true, At(300));
+  p.OnChange(3, At(300));
+  auto interactive = p.Poll(At(300));
+  ASSERT_TRUE(interactive.has_value());
+  EXPECT_FALSE(interactive->refine);
+  p.OnDataChange(4);
+  EXPECT_FALSE(p.Poll(At(310)).has_value());
+  p.OnFrameDone(interactive->sequence, true, 20);
+  auto next = p.Poll(At(320));
+  ASSERT_TRUE(next.has_value());
+  EXPECT_FALSE(next->refine);
+  EXPECT_EQ(next->version, 4u);
+}
+
 }  // namespace
 }  // namespace octoscope::session

@@ -1,7 +1,9 @@
 // CpuRaycaster: the hand-written, multi-threaded C++ ray caster the OpenCL kernels are measured
-// against (`octoscope bench render`: "kernel Msamples/s / C++ loop Msamples/s"). It answers "what
-// can this CPU do with a straightforward loop over the full-resolution volume?", so it does the
-// SAME sampling as the kernels and the reference renderer (reference_renderer.h), in float:
+// against (`octoscope bench render`: "kernel Msamples/s / C++ loop Msamples/s"). A benchmark
+// baseline, not production code: it lives in bench/ (library octoscope_bench_baseline, linked only
+// by the bench command and its tests). It answers "what can this CPU do with a straightforward loop
+// over the full-resolution volume?", so it does the SAME sampling as the kernels and the reference
+// renderer (reference_renderer.h), in float:
 //  1. Ray setup per pixel in double, with the reference's own ClipRayToVolume (box and clipping
 //     planes) and segment count (a ray is set up once; its samples are what cost).
 //  2. Sample i at the midpoint of segment i, computed from the entry point (never accumulated),
@@ -14,15 +16,15 @@
 //     defines them. MIP/MinIP keep the extreme STORED value per channel and window it once at the
 //     end: windowing is monotone, so that equals the extreme of the windowed values.
 // There is no octree, no level of detail and no empty-space skipping: every sample reads level 0.
-// The images equal the reference's within float rounding (tests/render/cpu_raycaster_test.cpp).
+// The images equal the reference's within float rounding (tests/bench/cpu_raycaster_test.cpp).
 //
 // Threads: std::thread per hardware thread (or as asked), rows interleaved (thread k renders rows
 // k, k + n, ...), so the dense and the empty parts of an image spread evenly.
 //
 // Thread safety: immutable after Create; Render is reentrant (it reads the volume only and writes
 // its own image) and may be called from several threads at once.
-#ifndef OCTOSCOPE_RENDER_CPU_RAYCASTER_H_
-#define OCTOSCOPE_RENDER_CPU_RAYCASTER_H_
+#ifndef OCTOSCOPE_BENCH_BASELINE_CPU_RAYCASTER_H_
+#define OCTOSCOPE_BENCH_BASELINE_CPU_RAYCASTER_H_
 
 #include <array>
 #include <cstdint>
@@ -31,12 +33,12 @@
 
 #include "render/camera.h"
 #include "render/linear_algebra.h"
-#include "render/reference_renderer.h"
+#include "render/render_image.h"
 #include "render/render_params.h"
 #include "util/result.h"
 #include "volume/data_type.h"
 
-namespace octoscope::render {
+namespace octoscope::bench {
 
 struct CpuRaycastStats {
   uint64_t rays = 0;     // Pixels.
@@ -51,20 +53,21 @@ class CpuRaycaster {
   // Takes the volume, with ReferenceVolume's invariants (sizes >= 1, spacing finite and > 0,
   // stored type uint8 or uint16, one vector of size[0] * size[1] * size[2] samples per channel,
   // x fastest, each value <= TypeMax(stored_type)); errors when they do not hold.
-  static Result<CpuRaycaster> Create(const std::array<int64_t, 3>& size, const Vec3& spacing_um,
-                                     volume::DataType stored_type,
+  static Result<CpuRaycaster> Create(const std::array<int64_t, 3>& size,
+                                     const render::Vec3& spacing_um, volume::DataType stored_type,
                                      std::vector<std::vector<uint16_t>> channels);
 
   // Renders the volume as seen by `camera` on `threads` threads (0 = one per hardware thread).
   // Errors when `params` is invalid for the volume.
-  Result<RenderImage> Render(const Camera& camera, const RenderParams& params, int threads = 0,
-                             CpuRaycastStats* stats = nullptr) const;
+  Result<render::RenderImage> Render(const render::Camera& camera,
+                                     const render::RenderParams& params, int threads = 0,
+                                     CpuRaycastStats* stats = nullptr) const;
 
   const std::array<int64_t, 3>& size() const { return size_; }
-  const Vec3& spacing() const { return spacing_; }
+  const render::Vec3& spacing() const { return spacing_; }
   volume::DataType stored_type() const { return stored_type_; }
   int channel_count() const { return static_cast<int>(channels_.size()); }
-  Box3 bounds() const { return PhysicalBounds(size_, spacing_); }
+  render::Box3 bounds() const { return render::PhysicalBounds(size_, spacing_); }
   // Channel c's samples, x fastest. REQUIRES: 0 <= c < channel_count().
   std::span<const uint16_t> channel(int c) const { return channels_[c]; }
 
@@ -72,11 +75,11 @@ class CpuRaycaster {
   CpuRaycaster() = default;
 
   std::array<int64_t, 3> size_{1, 1, 1};
-  Vec3 spacing_{1, 1, 1};
+  render::Vec3 spacing_{1, 1, 1};
   volume::DataType stored_type_ = volume::DataType::kUint16;
   std::vector<std::vector<uint16_t>> channels_;
 };
 
-}  // namespace octoscope::render
+}  // namespace octoscope::bench
 
-#endif  // OCTOSCOPE_RENDER_CPU_RAYCASTER_H_
+#endif  // OCTOSCOPE_BENCH_BASELINE_CPU_RAYCASTER_H_

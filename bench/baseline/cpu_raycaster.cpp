@@ -1,4 +1,4 @@
-#include "render/cpu_raycaster.h"
+#include "baseline/cpu_raycaster.h"
 
 #include <algorithm>
 #include <chrono>
@@ -7,9 +7,24 @@
 #include <thread>
 #include <utility>
 
+#include "render/reference_renderer.h"
 #include "util/checked_math.h"
 
-namespace octoscope::render {
+namespace octoscope::bench {
+
+using render::Box3;
+using render::Camera;
+using render::ChannelParams;
+using render::ClipRayToVolume;
+using render::kEarlyTerminationAlpha;
+using render::kLutEntries;
+using render::Mat4;
+using render::Ray;
+using render::RenderImage;
+using render::RenderMode;
+using render::RenderParams;
+using render::Vec3;
+
 namespace {
 
 // One enabled channel, with everything the inner loop needs in float.
@@ -405,4 +420,4 @@ Result<RenderImage> CpuRaycaster::Render(const Camera& camera, const RenderParam
   return image;
 }
 
-}  // namespace octoscope::render
+}  // namespace octoscope::bench

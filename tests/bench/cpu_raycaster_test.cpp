@@ -2,7 +2,7 @@
 // images within float rounding, for every mode, standard and perspective views, anisotropic
 // spacing, fractional steps, LUTs, gamma, clipping planes and per-channel transforms; the same
 // sample counts; thread-count independence.
-#include "render/cpu_raycaster.h"
+#include "baseline/cpu_raycaster.h"
 
 #include <gtest/gtest.h>
 
@@ -12,11 +12,14 @@
 
 #include "render/camera.h"
 #include "render/reference_renderer.h"
+#include "render/render_fixture.h"
 #include "render/render_params.h"
-#include "render_fixture.h"
 
 namespace octoscope::render {
 namespace {
+
+using ::octoscope::bench::CpuRaycaster;
+using ::octoscope::bench::CpuRaycastStats;
 
 using testing::CompareImages;
 

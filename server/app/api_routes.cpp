@@ -1,0 +1,315 @@
+#include "app/api_routes.h"
+
+#include <span>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+#include "dataset/dataset_description.h"
+#include "protocol/api_json.h"
+#include "protocol/dataset_json.h"
+#include "protocol/query_string.h"
+#include "volume/data_type.h"
+
+namespace octoscope::app {
+namespace {
+
+using net::HttpResponse;
+
+// The HTTP status of an error (docs/api.md).
+int HttpStatusFor(const Status& status) {
+  switch (status.code()) {
+    case StatusCode::kInvalidArgument:
+    case StatusCode::kOutOfRange:
+    case StatusCode::kCorrupt:
+    case StatusCode::kUnsupported:
+      return 400;
+    case StatusCode::kNotFound:
+      return 404;
+    case StatusCode::kFailedPrecondition:
+      return 409;
+    case StatusCode::kResourceExhausted:
+      return 413;
+    case StatusCode::kUnavailable:
+    case StatusCode::kCancelled:
+      return 503;
+    default:
+      return 500;
+  }
+}
+
+HttpResponse ErrorResponse(const Status& status) {
+  return HttpResponse::Error(HttpStatusFor(status), status.message());
+}
+
+// "/api/datasets/ID/rest" → {"ID", "/rest"}; nothing when the path is not below /api/datasets/.
+bool SplitDatasetPath(std::string_view path, std::string* id, std::string* rest) {
+  constexpr std::string_view kPrefix = "/api/datasets/";
+  if (!path.starts_with(kPrefix)) return false;
+  path.remove_prefix(kPrefix.size());
+  const size_t slash = path.find('/');
+  *id = std::string(path.substr(0, slash));
+  *rest = slash == std::string_view::npos ? "" : std::string(path.substr(slash));
+  return !id->empty();
+}
+
+bool IsSlabUpload(const net::HttpRequest& head) {
+  std::string id, rest;
+  return head.method == "PUT" && SplitDatasetPath(head.path, &id, &rest) && rest == "/slabs";
+}
+
+}  // namespace
+
+// The body of one slab upload, pulled from the connection piece by piece (I/O threads: it only
+// appends), then inserted on an upload worker. Each pending Read holds the reader alive.
+struct ApiRoutes::SlabUpload {
+  std::shared_ptr<dataset::Dataset> dataset;
+  protocol::SlabQuery query;
+  bool tiff = false;
+  uint64_t limit = 0;  // Raw: exactly this many bytes; TIFF: at most.
+  std::vector<std::byte> body;
+};
+
+struct ApiRoutes::SlabReader : std::enable_shared_from_this<SlabReader> {
+  SlabReader(ApiRoutes* routes, std::shared_ptr<SlabUpload> upload,
+             std::shared_ptr<net::BodyReader> reader, net::HttpResponder responder)
+      : routes(routes),
+        upload(std::move(upload)),
+        reader(std::move(reader)),
+        responder(std::move(responder)) {}
+
+  void Next() {
+    reader->Read([self = shared_from_this()](Result<std::span<const uint8_t>> piece) {
+      self->OnPiece(std::move(piece));
+    });
+  }
+
+  void OnPiece(Result<std::span<const uint8_t>> piece) {
+    if (!piece.ok()) return;  // The net layer answered (413/400) or the client left.
+    if (!piece->empty()) {
+      if (upload->body.size() + piece->size() > upload->limit) {
+        return routes->Respond(
+            responder,
+            HttpResponse::Error(413, "slab body over " + std::to_string(upload->limit) + " bytes"));
+      }
+      const auto* bytes = reinterpret_cast<const std::byte*>(piece->data());
+      upload->body.insert(upload->body.end(), bytes, bytes + piece->size());
+      return Next();
+    }
+    if (!upload->tiff && upload->body.size() != upload->limit) {
+      return routes->Respond(
+          responder,
+          HttpResponse::Error(400, "slab body ended after " + std::to_string(upload->body.size()) +
+                                       " of " + std::to_string(upload->limit) + " bytes"));
+    }
+    routes->RunUpload(responder, [routes = routes, upload = upload, responder = responder] {
+      const protocol::SlabQuery& q = upload->query;
+      Status status =
+          upload->tiff ? upload->dataset->AddTiffSlab(q.channel, q.z, q.depth, upload->body, q.wait)
+                       : upload->dataset->AddSlab(q.channel, q.z, q.depth, upload->body, q.wait);
+      upload->body = {};
+      if (!status.ok()) return routes->Respond(responder, ErrorResponse(status));
+      const dataset::DatasetStatus s = upload->dataset->status();
+      routes->Respond(responder,
+                      HttpResponse::Json(
+                          200, protocol::SlabResultJson(static_cast<int64_t>(s.planes_received),
+                                                        static_cast<int64_t>(s.planes_inserted))));
+    });
+  }
+
+  ApiRoutes* routes;
+  std::shared_ptr<SlabUpload> upload;
+  std::shared_ptr<net::BodyReader> reader;
+  net::HttpResponder responder;
+};
+
+ApiRoutes::ApiRoutes(dataset::DatasetRegistry* registry, session::DatasetHub* hub,
+                     session::ServerMetrics* metrics, LatestWinsExecutor* uploads,
+                     ApiRoutesOptions options)
+    : registry_(registry),
+      hub_(hub),
+      metrics_(metrics),
+      uploads_(uploads),
+      options_(std::move(options)),
+      started_(std::chrono::steady_clock::now()),
+      uploads_running_(std::make_shared<std::atomic<int>>(0)) {}
+
+net::BodyMode ApiRoutes::BodyModeFor(const net::HttpRequest& head) {
+  return IsSlabUpload(head) ? net::BodyMode::kStreamed : net::BodyMode::kBuffered;
+}
+
+void ApiRoutes::Respond(const net::HttpResponder& responder, HttpResponse response) {
+  if (metrics_ != nullptr) metrics_->HttpResponse(response.status);
+  responder.Respond(std::move(response));
+}
+
+void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
+  const std::string& path = request.path;
+  const std::string& method = request.method;
+  auto method_not_allowed = [&](std::string_view allow) {
+    HttpResponse response = HttpResponse::Error(405, "method " + method + " not allowed");
+    response.headers.push_back({"Allow", std::string(allow)});
+    Respond(responder, std::move(response));
+  };
+  if (path == "/api/health") {
+    if (method != "GET") return method_not_allowed("GET");
+    return Health(responder);
+  }
+  if (path == "/metrics") {
+    if (method != "GET") return method_not_allowed("GET");
+    return Metrics(responder);
+  }
+  if (path == "/api/datasets") {
+    if (method == "GET") {
+      std::vector<protocol::DatasetDescription> list;
+      for (const auto& dataset : registry_->List()) list.push_back(dataset::Describe(*dataset));
+      return Respond(responder, HttpResponse::Json(200, protocol::DatasetListJson(list)));
+    }
+    if (method == "POST") return CreateStream(request, responder);
+    return method_not_allowed("GET, POST");
+  }
+  std::string id, rest;
+  if (!SplitDatasetPath(path, &id, &rest)) {
+    return Respond(responder, HttpResponse::Error(404, "no such path"));
+  }
+  if (rest == "/slabs") {
+    if (method != "PUT") return method_not_allowed("PUT");
+    return PutSlab(request, id, responder);
+  }
+  if (rest == "/finish") {
+    if (method != "POST") return method_not_allowed("POST");
+    return Finish(id, responder);
+  }
+  std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
+  if (dataset == nullptr || (!rest.empty() && rest != "/histogram")) {
+    return Respond(
+        responder,
+        HttpResponse::Error(404, dataset == nullptr ? "no dataset '" + id + "'" : "no such path"));
+  }
+  if (method != "GET") return method_not_allowed("GET");
+  if (rest.empty()) {
+    return Respond(responder,
+                   HttpResponse::Json(200, protocol::DatasetJson(dataset::Describe(*dataset))));
+  }
+  Respond(responder,
+          HttpResponse::Json(200, protocol::HistogramJson(dataset::DescribeHistogram(*dataset))));
+}
+
+void ApiRoutes::Health(const net::HttpResponder& responder) {
+  protocol::HealthInfo health;
+  health.version = options_.version;
+  health.uptime_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count();
+  health.datasets = static_cast<int64_t>(registry_->List().size());
+  health.sessions = metrics_ != nullptr ? metrics_->sessions() : 0;
+  Respond(responder, HttpResponse::Json(200, protocol::HealthJson(health)));
+}
+
+void ApiRoutes::Metrics(const net::HttpResponder& responder) {
+  std::string text = metrics_ != nullptr ? metrics_->PrometheusText() : std::string();
+  const auto datasets = registry_->List();
+  session::AppendMetricHeader(&text, "octoscope_dataset_planes_inserted", "gauge",
+                              "Planes (z x channels) visible in the octree.");
+  for (const auto& dataset : datasets) {
+    text += "octoscope_dataset_planes_inserted{dataset=\"" +
+            session::EscapeLabelValue(dataset->id()) + "\"} " +
+            std::to_string(dataset->status().planes_inserted) + "\n";
+  }
+  session::AppendMetricHeader(&text, "octoscope_dataset_planes_total", "gauge",
+                              "Planes (z x channels) of the dataset.");
+  for (const auto& dataset : datasets) {
+    text += "octoscope_dataset_planes_total{dataset=\"" + session::EscapeLabelValue(dataset->id()) +
+            "\"} " + std::to_string(dataset->status().planes_total) + "\n";
+  }
+  HttpResponse response;
+  response.status = 200;
+  response.content_type = "text/plain; version=0.0.4; charset=utf-8";
+  response.body = std::move(text);
+  Respond(responder, std::move(response));
+}
+
+void ApiRoutes::CreateStream(const net::HttpRequest& request, const net::HttpResponder& responder) {
+  auto parsed =
+      protocol::ParseStreamRequest(request.body, protocol::StreamRequestKind::kApi, "request body");
+  if (!parsed.ok()) return Respond(responder, ErrorResponse(parsed.status()));
+  // Creating the cache directory touches the disk: an upload worker does it.
+  RunUpload(responder, [this, responder, spec = std::move(*parsed)] {
+    auto created = registry_->CreateStream(spec);
+    if (!created.ok()) return Respond(responder, ErrorResponse(created.status()));
+    Respond(responder, HttpResponse::Json(201, protocol::CreatedJson((*created)->id())));
+  });
+}
+
+void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
+                        const net::HttpResponder& responder) {
+  auto query = protocol::ParseSlabQuery(request.query);
+  if (!query.ok()) return Respond(responder, ErrorResponse(query.status()));
+  auto upload = std::make_shared<SlabUpload>();
+  upload->dataset = registry_->Find(id);
+  if (upload->dataset == nullptr) {
+    return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
+  }
+  if (!upload->dataset->is_stream()) {
+    return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));
+  }
+  upload->query = *query;
+  const std::string_view type = request.Header("Content-Type");
+  upload->tiff = type.starts_with("image/tiff");
+  if (!upload->tiff && !type.empty() && !type.starts_with("application/octet-stream")) {
+    return Respond(responder, HttpResponse::Error(415,
+                                                  "Content-Type must be application/octet-stream "
+                                                  "(raw little-endian samples) or image/tiff"));
+  }
+  const volume::VolumeInfo& info = upload->dataset->info();
+  const uint64_t raw_bytes =
+      info.PlaneVoxels() * static_cast<uint64_t>(query->depth) * volume::BytesPerSample(info.dtype);
+  upload->limit = upload->tiff ? dataset::kMaxTiffSlabBytes : raw_bytes;
+  const auto length = request.body_reader->content_length();
+  if (!upload->tiff && length && *length != raw_bytes) {
+    return Respond(
+        responder,
+        HttpResponse::Error(400, "slab body is " + std::to_string(*length) + " bytes; " +
+                                     std::to_string(query->depth) + " planes of this dataset are " +
+                                     std::to_string(raw_bytes)));
+  }
+  if (length && *length > upload->limit) {
+    return Respond(responder, HttpResponse::Error(413, "slab body too large"));
+  }
+  if (length) upload->body.reserve(*length);
+  std::make_shared<SlabReader>(this, std::move(upload), request.body_reader, responder)->Next();
+}
+
+void ApiRoutes::Finish(const std::string& id, const net::HttpResponder& responder) {
+  std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
+  if (dataset == nullptr) {
+    return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
+  }
+  if (!dataset->is_stream()) {
+    return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));
+  }
+  RunUpload(responder, [this, dataset, responder] {
+    Status status = dataset->Finish();
+    if (!status.ok()) return Respond(responder, ErrorResponse(status));
+    Respond(responder, HttpResponse::Json(200, protocol::DatasetJson(dataset::Describe(*dataset))));
+  });
+}
+
+bool ApiRoutes::RunUpload(const net::HttpResponder& responder, std::function<void()> job) {
+  if (uploads_running_->fetch_add(1) >= options_.max_concurrent_uploads) {
+    uploads_running_->fetch_sub(1);
+    Respond(responder, HttpResponse::Error(429, "too many concurrent uploads; retry"));
+    return false;
+  }
+  uploads_->Submit(next_upload_.fetch_add(1), [running = uploads_running_, job = std::move(job)] {
+    // Released even when the job throws (the executor catches; the responder's
+    // last copy then answers 500).
+    struct Release {
+      std::atomic<int>* n;
+      ~Release() { n->fetch_sub(1); }
+    } release{running.get()};
+    job();
+  });
+  return true;
+}
+
+}  // namespace octoscope::app

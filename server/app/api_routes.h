@@ -1,0 +1,65 @@
+// ApiRoutes: the REST API of `octoscope serve` (docs/api.md) on top of the dataset registry —
+// health, metrics, the dataset list, histograms, and streaming ingest (create, slabs, finish).
+// The net layer hands requests over on I/O threads; everything that touches disk or the octree
+// (slab inserts, finishing a stream) runs on the upload workers, and slab bodies are pulled from
+// the connection piece by piece into one buffer of exactly the expected size.
+//
+// Thread safety: Handle may be called from any I/O thread concurrently.
+#ifndef OCTOSCOPE_APP_API_ROUTES_H_
+#define OCTOSCOPE_APP_API_ROUTES_H_
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "dataset/dataset_registry.h"
+#include "net/api_handler.h"
+#include "session/dataset_hub.h"
+#include "session/server_metrics.h"
+#include "util/latest_wins_executor.h"
+
+namespace octoscope::app {
+
+struct ApiRoutesOptions {
+  std::string version;
+  int max_concurrent_uploads = 8;  // More at once: 429.
+};
+
+class ApiRoutes : public net::ApiHandler {
+ public:
+  // All pointers must outlive the routes (and the server that calls them).
+  ApiRoutes(dataset::DatasetRegistry* registry, session::DatasetHub* hub,
+            session::ServerMetrics* metrics, LatestWinsExecutor* uploads, ApiRoutesOptions options);
+
+  net::BodyMode BodyModeFor(const net::HttpRequest& head) override;
+  void Handle(net::HttpRequest request, net::HttpResponder responder) override;
+
+ private:
+  struct SlabUpload;
+  struct SlabReader;
+
+  void Health(const net::HttpResponder& responder);
+  void Metrics(const net::HttpResponder& responder);
+  void CreateStream(const net::HttpRequest& request, const net::HttpResponder& responder);
+  void PutSlab(const net::HttpRequest& request, const std::string& id,
+               const net::HttpResponder& responder);
+  void Finish(const std::string& id, const net::HttpResponder& responder);
+  // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
+  bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
+  void Respond(const net::HttpResponder& responder, net::HttpResponse response);
+
+  dataset::DatasetRegistry* registry_;
+  session::DatasetHub* hub_;
+  session::ServerMetrics* metrics_;
+  LatestWinsExecutor* uploads_;
+  const ApiRoutesOptions options_;
+  const std::chrono::steady_clock::time_point started_;
+  std::atomic<uint64_t> next_upload_{1};
+  std::shared_ptr<std::atomic<int>> uploads_running_;
+};
+
+}  // namespace octoscope::app
+
+#endif  // OCTOSCOPE_APP_API_ROUTES_H_

@@ -1,0 +1,182 @@
+// octoscope serve: the viewer server (docs/server.md). The composition root of the server: it
+// reads the flags (and --config), builds the render service, the dataset registry (with the demo
+// stream and watched folders), the shared session services and the HTTP/WebSocket server, prints
+// the URL to open, and on SIGINT/SIGTERM shuts them down in order: no new connections, sessions
+// closed, streams finished and pages flushed, threads joined.
+#include <signal.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "app/api_routes.h"
+#include "app/commands.h"
+#include "app/flags.h"
+#include "app/serve_settings.h"
+#include "app/volume_options.h"
+#include "app/ws_bridge.h"
+#include "dataset/dataset_registry.h"
+#include "dataset/demo_stream.h"
+#include "dataset/folder_watcher.h"
+#include "encode/jpeg_encoder.h"
+#include "net/server.h"
+#include "render/device.h"
+#include "render/render_service.h"
+#include "session/dataset_hub.h"
+#include "session/server_metrics.h"
+#include "session/view_session.h"
+#include "util/latest_wins_executor.h"
+#include "util/logger.h"
+#include "util/random_token.h"
+#include "util/timer_queue.h"
+
+namespace octoscope::app {
+namespace {
+
+constexpr char kVersion[] = "0.1.0";
+
+int Fail(const char* what, const Status& status) {
+  std::fprintf(stderr, "octoscope serve: %s: %s\n", what, status.ToString().c_str());
+  return kExitBadInput;
+}
+
+// Blocks SIGINT and SIGTERM in this thread and every thread it starts afterwards, so that
+// WaitForStopSignal receives them (no handler runs on a random thread).
+sigset_t BlockStopSignals() {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &set, nullptr);
+  return set;
+}
+
+int WaitForStopSignal(const sigset_t& set) {
+  int signal = 0;
+  while (sigwait(&set, &signal) != 0) {
+  }
+  return signal;
+}
+
+}  // namespace
+
+int RunServe(std::span<const std::string> args) {
+  Flags flags("octoscope serve [options]",
+              "Serves the browser viewer: datasets under --data folders (built into octree\n"
+              "caches on first view), the built-in demo (--demo, streamed in like an\n"
+              "acquisition), folders an acquisition writes TIFF planes into (--watch), and\n"
+              "streams sent over the HTTP API. Prints the URL to open (with the access token). "
+              "docs/server.md.");
+  AddServeFlags(flags);
+  if (Status status = flags.Parse(args); !status.ok()) {
+    std::fprintf(stderr, "%s: %s\n\n%s", flags.command().c_str(), status.message().c_str(),
+                 flags.Help().c_str());
+    return kExitUsage;
+  }
+  if (flags.help_requested()) {
+    std::fputs(flags.Help().c_str(), stdout);
+    return kExitOk;
+  }
+  auto settings = ResolveServeSettings(flags);
+  if (!settings.ok()) {
+    std::fprintf(stderr, "octoscope serve: %s\n", settings.status().message().c_str());
+    return settings.status().code() == StatusCode::kInvalidArgument ? kExitUsage : kExitBadInput;
+  }
+  const sigset_t stop_signals = BlockStopSignals();
+  StreamLogger logger(stderr, LogLevel::kInfo);
+
+  // The device and its render thread.
+  auto device = render::ChooseDevice(settings->device);
+  if (!device.ok()) return Fail("no OpenCL device", device.status());
+  auto context = render::ComputeContext::Create(*device);
+  if (!context.ok()) return Fail("OpenCL", context.status());
+  render::RenderServiceOptions render_options;
+  render_options.device_memory_bytes = settings->device_mb << 20;
+  auto renderer = render::RenderService::Create(std::move(*context), render_options);
+  if (!renderer.ok()) return Fail("render service", renderer.status());
+
+  // Datasets.
+  dataset::RegistryOptions registry_options;
+  registry_options.data_dirs = settings->data_dirs;
+  registry_options.cache_root = settings->cache_dir;
+  registry_options.ram_bytes = settings->ram_mb << 20;
+  registry_options.open = DefaultOpenOptions();
+  auto registry = dataset::DatasetRegistry::Create(registry_options);
+  if (!registry.ok()) return Fail("datasets", registry.status());
+  std::unique_ptr<dataset::DemoStream> demo;
+  std::string open_dataset;
+  if (settings->demo) {
+    dataset::DemoOptions demo_options;
+    demo_options.size = settings->demo_size;
+    demo_options.planes_per_second = settings->demo_rate;
+    auto started = dataset::DemoStream::Start(registry->get(), demo_options);
+    if (!started.ok()) return Fail("demo", started.status());
+    demo = std::move(*started);
+    open_dataset = demo->dataset_id();
+  }
+  std::vector<std::unique_ptr<dataset::FolderWatcher>> watchers;
+  for (const auto& dir : settings->watch_dirs) {
+    auto watcher = dataset::FolderWatcher::Start(registry->get(), dir, &logger);
+    if (!watcher.ok()) return Fail("--watch", watcher.status());
+    watchers.push_back(std::move(*watcher));
+  }
+
+  // Session services.
+  session::ServerMetrics metrics;
+  auto hub = std::make_unique<session::DatasetHub>(
+      renderer->get(), [registry = registry->get()](std::string_view id) {
+        auto opened = registry->Open(id);
+        return opened.ok() ? *opened : nullptr;
+      });
+  LatestWinsExecutor encoders(settings->encoder_threads);
+  encode::JpegEncoderPool jpeg_encoders;
+  auto uploads = std::make_unique<LatestWinsExecutor>(2);
+  TimerQueue timers;
+  session::SessionContext session_context;
+  session_context.renderer = renderer->get();
+  session_context.datasets = hub.get();
+  session_context.encoders = &encoders;
+  session_context.jpeg = &jpeg_encoders;
+  session_context.timers = &timers;
+  session_context.metrics = &metrics;
+  session_context.server_version = kVersion;
+
+  net::ServerOptions server_options;
+  server_options.bind_address = settings->bind;
+  server_options.port = settings->port;
+  server_options.io_threads = settings->io_threads;
+  server_options.token = settings->token;
+  server_options.web_root = settings->web_root;
+  server_options.max_upload_bytes = settings->max_upload_mb << 20;
+  auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
+                                            ApiRoutesOptions{kVersion});
+  auto server =
+      net::Server::Start(server_options, routes, MakeSessionFactory(&session_context), logger);
+  if (!server.ok()) return Fail("listen", server.status());
+
+  std::printf("%s\n", ServeUrl(*settings, (*server)->port(), open_dataset).c_str());
+  std::fflush(stdout);
+  logger.Log(LogLevel::kInfo, "serving " + std::to_string(registry->get()->List().size()) +
+                                  " dataset(s) on " + (*registry)->cache_root().string() +
+                                  "; device " + (*renderer)->device().name);
+
+  const int signal = WaitForStopSignal(stop_signals);
+  logger.Log(LogLevel::kInfo,
+             std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
+  // In order: no new connections and sessions closed; no new data; datasets flushed.
+  (*server)->Shutdown();
+  watchers.clear();
+  demo.reset();
+  uploads.reset();  // Slab inserts in flight finish.
+  hub.reset();
+  (*registry)->Close();
+  logger.Log(LogLevel::kInfo, "stopped");
+  return kExitOk;
+}
+
+}  // namespace octoscope::app

@@ -1,0 +1,239 @@
+#include "app/serve_settings.h"
+
+#include <unistd.h>
+
+#include <cstdlib>
+#include <fstream>
+#include <sstream>
+
+#include "protocol/serve_config.h"
+#include "util/random_token.h"
+
+#ifndef OCTOSCOPE_SOURCE_DIR
+#define OCTOSCOPE_SOURCE_DIR ""
+#endif
+
+namespace octoscope::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The token must not be guessable and fit in a URL and a header.
+constexpr size_t kMinTokenChars = 16;
+constexpr size_t kMaxTokenChars = 256;
+
+Result<std::string> ReadTokenFile(const fs::path& path) {
+  std::ifstream in(path);
+  if (!in) return NotFoundError(path.string() + ": cannot read the token file");
+  std::string line;
+  std::getline(in, line);
+  while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) {
+    line.pop_back();
+  }
+  return line;
+}
+
+Status CheckToken(const std::string& token) {
+  if (token.size() < kMinTokenChars || token.size() > kMaxTokenChars) {
+    return InvalidArgumentError("the token must be " + std::to_string(kMinTokenChars) + " to " +
+                                std::to_string(kMaxTokenChars) + " characters");
+  }
+  for (char c : token) {
+    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+                    c == '-' || c == '_' || c == '.' || c == '~';
+    if (!ok) return InvalidArgumentError("the token may hold only A-Z a-z 0-9 - _ . ~");
+  }
+  return Status::Ok();
+}
+
+fs::path DefaultCacheDir() {
+  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg != nullptr && *xdg == '/') {
+    return fs::path(xdg) / "octoscope";
+  }
+  if (const char* home = std::getenv("HOME"); home != nullptr && *home == '/') {
+    return fs::path(home) / ".cache" / "octoscope";
+  }
+  return fs::current_path() / "octoscope-cache";
+}
+
+// The web client beside the installed binary, in the checkout the build folder lies in, or the
+// source tree the binary was built from.
+fs::path DefaultWebRoot() {
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  std::vector<fs::path> candidates;
+  if (!ec) {
+    candidates = {exe.parent_path() / "web", exe.parent_path().parent_path() / "web",
+                  exe.parent_path().parent_path() / "share" / "octoscope" / "web"};
+  }
+  if (*OCTOSCOPE_SOURCE_DIR != '\0') candidates.push_back(fs::path(OCTOSCOPE_SOURCE_DIR) / "web");
+  for (const fs::path& c : candidates) {
+    if (fs::is_regular_file(c / "index.html", ec)) return c;
+  }
+  return {};
+}
+
+uint64_t DefaultRamMb() {
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return 1024;
+  const uint64_t total_mb = static_cast<uint64_t>(pages) * static_cast<uint64_t>(page) >> 20;
+  // A quarter of the machine, as the paper's viewer on a shared lab PC: the rest stays for the
+  // acquisition software and the OS page cache.
+  return std::max<uint64_t>(256, total_mb / 4);
+}
+
+}  // namespace
+
+void AddServeFlags(Flags& flags) {
+  flags.AddValue("data", "DIR", "serve every scan under DIR (repeatable)");
+  flags.AddSwitch("demo", "stream the built-in demo specimen in like an acquisition");
+  flags.AddValue("demo-size", "X,Y,Z", "size of the demo specimen", "256,256,160");
+  flags.AddValue("demo-rate", "PLANES", "demo planes per second", "5");
+  flags.AddValue("watch", "DIR",
+                 "stream in the TIFF planes an acquisition writes into DIR (repeatable)");
+  flags.AddValue("cache", "DIR", "octree caches, one folder per dataset",
+                 "$XDG_CACHE_HOME/octoscope");
+  flags.AddValue("bind", "ADDR", "address to listen on", "127.0.0.1");
+  flags.AddValue("port", "N", "port (0 picks a free one)", "8080");
+  flags.AddValue("token", "T", "access token (default: a random 128-bit one, printed in the URL)");
+  flags.AddValue("token-file", "F", "read the access token from the first line of F");
+  flags.AddValue("config", "FILE", "JSON file with any of these options (flags win)");
+  flags.AddValue("ram-mb", "N", "RAM budget of all datasets' page caches", "a quarter of RAM");
+  flags.AddValue("device-mb", "N", "device memory for bricks", "automatic");
+  flags.AddValue("device", "PREF", "OpenCL device: gpu, cpu, N, P:D or name text", "best");
+  flags.AddValue("web", "DIR", "the web client's files", "web/ beside the binary");
+  flags.AddValue("io-threads", "N", "network I/O threads", "2");
+  flags.AddValue("max-upload-mb", "N", "largest slab upload", "1024");
+}
+
+Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
+  ServeSettings s;
+  protocol::ServeConfig config;
+  if (auto path = flags.Get("config")) {
+    std::ifstream in(*path, std::ios::binary);
+    if (!in) return NotFoundError(*path + ": cannot read the config file");
+    std::ostringstream text;
+    text << in.rdbuf();
+    auto parsed = protocol::ParseServeConfig(text.str(), *path);
+    if (!parsed.ok()) return InvalidArgumentError(parsed.status().message());
+    config = std::move(*parsed);
+  }
+  // Flags win over the file.
+  auto text = [&](const char* flag, const std::optional<std::string>& from_config) {
+    if (auto v = flags.Get(flag)) return std::optional<std::string>(*v);
+    return from_config;
+  };
+  auto integer = [&](const char* flag, const std::optional<int64_t>& from_config, int64_t fallback,
+                     int64_t lo, int64_t hi) -> Result<int64_t> {
+    if (flags.Has(flag)) return flags.GetInt(flag, fallback, lo, hi);
+    return from_config.value_or(fallback);
+  };
+
+  for (const std::string& d : flags.Has("data") ? flags.GetAll("data") : config.data) {
+    s.data_dirs.push_back(d);
+  }
+  for (const std::string& d : flags.Has("watch") ? flags.GetAll("watch") : config.watch) {
+    s.watch_dirs.push_back(d);
+  }
+  s.demo = flags.Has("demo") || config.demo.value_or(false);
+  if (auto v = flags.Get("demo-size")) {
+    std::array<int64_t, 3> size{};
+    std::istringstream in(*v);
+    char comma1 = 0, comma2 = 0;
+    if (!(in >> size[0] >> comma1 >> size[1] >> comma2 >> size[2]) || comma1 != ',' ||
+        comma2 != ',' || !in.eof()) {
+      return InvalidArgumentError("--demo-size: expected X,Y,Z, got '" + *v + "'");
+    }
+    for (int64_t n : size) {
+      if (n < 16 || n > 4096) return InvalidArgumentError("--demo-size: each in [16, 4096]");
+    }
+    s.demo_size = size;
+  } else if (config.demo_size) {
+    s.demo_size = {(*config.demo_size)[0], (*config.demo_size)[1], (*config.demo_size)[2]};
+  }
+  if (flags.Has("demo-rate")) {
+    auto rate = flags.GetDouble("demo-rate", 5);
+    if (!rate.ok()) return rate.status();
+    if (!(*rate > 0 && *rate <= 1000)) return InvalidArgumentError("--demo-rate: in (0, 1000]");
+    s.demo_rate = *rate;
+  } else if (config.demo_rate) {
+    s.demo_rate = *config.demo_rate;
+  }
+  for (const fs::path& d : s.data_dirs) {
+    std::error_code ec;
+    if (!fs::is_directory(d, ec)) return NotFoundError(d.string() + ": not a folder (--data)");
+  }
+  s.cache_dir = text("cache", config.cache).value_or(DefaultCacheDir().string());
+  if (auto web = text("web", config.web)) {
+    s.web_root = *web;
+    std::error_code ec;
+    if (!fs::is_regular_file(s.web_root / "index.html", ec)) {
+      return NotFoundError(s.web_root.string() + ": no index.html (--web)");
+    }
+  } else {
+    s.web_root = DefaultWebRoot();
+  }
+  s.bind = text("bind", config.bind).value_or("127.0.0.1");
+  auto port = integer("port", config.port, 8080, 0, 65535);
+  if (!port.ok()) return port.status();
+  s.port = static_cast<uint16_t>(*port);
+  auto ram =
+      integer("ram-mb", config.ram_mb, static_cast<int64_t>(DefaultRamMb()), 64, int64_t{1} << 24);
+  if (!ram.ok()) return ram.status();
+  s.ram_mb = static_cast<uint64_t>(*ram);
+  auto device_mb = integer("device-mb", config.device_mb, 0, 0, int64_t{1} << 24);
+  if (!device_mb.ok()) return device_mb.status();
+  s.device_mb = static_cast<uint64_t>(*device_mb);
+  s.device = text("device", config.device).value_or("");
+  auto io = integer("io-threads", config.io_threads, 2, 1, 64);
+  if (!io.ok()) return io.status();
+  s.io_threads = static_cast<int>(*io);
+  auto upload = integer("max-upload-mb", config.max_upload_mb, 1024, 1, int64_t{1} << 20);
+  if (!upload.ok()) return upload.status();
+  s.max_upload_mb = static_cast<uint64_t>(*upload);
+
+  // The token: given, from a file, or generated (as Jupyter does).
+  const auto token = text("token", config.token);
+  const auto token_file = text("token-file", config.token_file);
+  if (token && token_file) return InvalidArgumentError("give --token or --token-file, not both");
+  if (token) {
+    s.token = *token;
+  } else if (token_file) {
+    auto read = ReadTokenFile(*token_file);
+    if (!read.ok()) return read.status();
+    s.token = *read;
+  }
+  if (!s.token.empty()) {
+    OCTO_RETURN_IF_ERROR(CheckToken(s.token));
+  } else {
+    if (!IsLoopback(s.bind)) {
+      return InvalidArgumentError("--bind " + s.bind +
+                                  " is reachable from other machines: give --token or "
+                                  "--token-file (a random token is generated only for loopback)");
+    }
+    auto generated = RandomHex(16);
+    if (!generated.ok()) return generated.status();
+    s.token = *generated;
+    s.token_generated = true;
+  }
+  return s;
+}
+
+bool IsLoopback(const std::string& address) {
+  return address == "localhost" || address == "::1" || address.starts_with("127.");
+}
+
+std::string ServeUrl(const ServeSettings& settings, uint16_t port, const std::string& dataset) {
+  std::string host = settings.bind;
+  if (host == "0.0.0.0" || host == "::") {
+    char name[256] = {};
+    host = gethostname(name, sizeof name - 1) == 0 && name[0] != '\0' ? name : "localhost";
+  }
+  if (host.find(':') != std::string::npos) host = "[" + host + "]";
+  std::string url = "http://" + host + ":" + std::to_string(port) + "/?token=" + settings.token;
+  if (!dataset.empty()) url += "&dataset=" + dataset;
+  return url;
+}
+
+}  // namespace octoscope::app

@@ -1,0 +1,203 @@
+#include "dataset/dataset_registry.h"
+
+#include <algorithm>
+#include <system_error>
+
+#include "util/random_token.h"
+
+namespace octoscope::dataset {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr char kDemoId[] = "demospecimen";
+
+// File names a reader may accept (a folder is always tried: slice folders, OME-Zarr).
+bool MayBeScan(const fs::path& path) {
+  std::string name = path.filename().string();
+  std::transform(name.begin(), name.end(), name.begin(),
+                 [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  for (const char* ext :
+       {".tif", ".tiff", ".btf", ".tf2", ".tf8", ".ome", ".ims", ".vvd", ".raw"}) {
+    if (name.ends_with(ext)) return true;
+  }
+  return false;
+}
+
+uint64_t Fnv1a(std::string_view text, uint64_t h = 1469598103934665603ull) {
+  for (unsigned char c : text) {
+    h ^= c;
+    h *= 1099511628211ull;
+  }
+  return h;
+}
+
+StreamSpec SpecFor(const protocol::StreamRequest& request, const std::string& id,
+                   const RegistryOptions& options) {
+  StreamSpec spec;
+  spec.id = id;
+  spec.name = request.name;
+  spec.size = request.size;
+  spec.channels = request.channels;
+  spec.dtype = request.dtype;
+  spec.spacing_um = request.spacing_um;
+  spec.channel_names = request.channel_names;
+  spec.cache_root = options.cache_root;
+  spec.ram_bytes = options.ram_bytes;
+  spec.flush_latency = options.stream_flush_latency;
+  return spec;
+}
+
+}  // namespace
+
+std::string ScanDatasetId(size_t root_index, const fs::path& relative_path) {
+  // 60 bits of a hash of the folder number and the relative path, in base 32 (a-z, 0-9 minus
+  // look-alikes are not needed: ids are not typed by hand).
+  uint64_t h = Fnv1a(std::to_string(root_index) + ":" + relative_path.generic_string());
+  static constexpr char kDigits[] = "0123456789abcdefghijklmnopqrstuv";
+  std::string id(12, '0');
+  for (int i = 11; i >= 0; --i) {
+    id[i] = kDigits[h & 31];
+    h >>= 5;
+  }
+  return id;
+}
+
+Result<std::unique_ptr<DatasetRegistry>> DatasetRegistry::Create(const RegistryOptions& options) {
+  std::error_code ec;
+  for (const fs::path& dir : options.data_dirs) {
+    if (!fs::is_directory(dir, ec)) return NotFoundError(dir.string() + ": not a folder");
+  }
+  fs::create_directories(options.cache_root, ec);
+  if (ec) return IoError(options.cache_root.string() + ": cannot create: " + ec.message());
+  std::unique_ptr<DatasetRegistry> registry(new DatasetRegistry(options));
+  for (size_t i = 0; i < options.data_dirs.size(); ++i) registry->Scan(options.data_dirs[i], i);
+  return registry;
+}
+
+DatasetRegistry::~DatasetRegistry() { Close(); }
+
+void DatasetRegistry::Scan(const fs::path& root, size_t root_index) {
+  // A data folder that is itself one dataset (a slice folder, an OME-Zarr) is listed as such.
+  if (TryAdd(root, root_index, root)) return;
+  ScanFolder(root, root_index, root, 0);
+}
+
+void DatasetRegistry::ScanFolder(const fs::path& root, size_t root_index, const fs::path& folder,
+                                 int depth) {
+  std::error_code ec;
+  std::vector<fs::path> entries;
+  for (fs::directory_iterator it(folder, fs::directory_options::skip_permission_denied, ec), end;
+       !ec && it != end; it.increment(ec)) {
+    entries.push_back(it->path());
+  }
+  std::sort(entries.begin(), entries.end());
+  for (const fs::path& path : entries) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (ordered_.size() >= options_.max_datasets) return;
+    }
+    if (path.filename().string().starts_with(".")) continue;
+    if (fs::is_directory(path, ec)) {
+      if (!TryAdd(root, root_index, path) && depth + 1 < options_.max_scan_depth) {
+        ScanFolder(root, root_index, path, depth + 1);
+      }
+    } else if (MayBeScan(path)) {
+      TryAdd(root, root_index, path);
+    }
+  }
+}
+
+bool DatasetRegistry::TryAdd(const fs::path& root, size_t root_index, const fs::path& path) {
+  SourceSpec spec;
+  spec.id = ScanDatasetId(root_index, fs::relative(path, root));
+  spec.path = path;
+  spec.open = options_.open;
+  spec.cache_root = options_.cache_root;
+  spec.ram_bytes = options_.ram_bytes;
+  std::shared_ptr<Dataset> dataset = Dataset::ForSource(spec);
+  std::error_code ec;
+  // Folders no reader accepts are containers (searched further); files with a scan's name that
+  // cannot be read are listed with their error, so that users see why.
+  if (dataset->status().state == DatasetState::kError && fs::is_directory(path, ec)) return false;
+  std::lock_guard<std::mutex> lock(mu_);
+  if (by_id_.count(spec.id) != 0) return true;
+  by_id_.emplace(spec.id, dataset);
+  ordered_.push_back(std::move(dataset));
+  return true;
+}
+
+std::vector<std::shared_ptr<Dataset>> DatasetRegistry::List() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return ordered_;
+}
+
+std::shared_ptr<Dataset> DatasetRegistry::Find(std::string_view id) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = by_id_.find(id);
+  return it == by_id_.end() ? nullptr : it->second;
+}
+
+Result<std::shared_ptr<Dataset>> DatasetRegistry::Open(std::string_view id) {
+  std::shared_ptr<Dataset> dataset = Find(id);
+  if (dataset == nullptr) return NotFoundError("no dataset '" + std::string(id) + "'");
+  OCTO_RETURN_IF_ERROR(dataset->Open());
+  Rebalance();
+  return dataset;
+}
+
+Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateStream(
+    const protocol::StreamRequest& request) {
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    OCTO_ASSIGN_OR_RETURN(std::string hex, RandomHex(6));
+    if (Find(hex) == nullptr) return CreateStreamWithId(request, hex);
+  }
+  return InternalError("no free stream id");
+}
+
+Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateStreamWithId(
+    const protocol::StreamRequest& request, const std::string& id) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return UnavailableError("the server is shutting down");
+    if (by_id_.count(id) != 0) return FailedPreconditionError("dataset '" + id + "' exists");
+  }
+  std::error_code ec;
+  fs::remove_all(options_.cache_root / id, ec);  // A fresh acquisition replaces an old one.
+  OCTO_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> dataset,
+                        Dataset::CreateStream(SpecFor(request, id, options_)));
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    by_id_.emplace(id, dataset);
+    ordered_.push_back(dataset);
+  }
+  Rebalance();
+  return dataset;
+}
+
+void DatasetRegistry::Rebalance() {
+  std::vector<std::shared_ptr<Dataset>> open;
+  for (const auto& dataset : List()) {
+    if (dataset->status().open) open.push_back(dataset);
+  }
+  if (open.empty()) return;
+  const uint64_t share = options_.ram_bytes / open.size();
+  for (const auto& dataset : open) {
+    if (dataset->ram_budget() != share) dataset->SetRamBudget(share);
+  }
+}
+
+void DatasetRegistry::Close() {
+  std::vector<std::shared_ptr<Dataset>> all;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return;
+    closed_ = true;
+    all = ordered_;
+  }
+  for (const auto& dataset : all) dataset->Close();
+}
+
+std::string_view DemoDatasetId() { return kDemoId; }
+
+}  // namespace octoscope::dataset
