@@ -439,7 +439,8 @@ class App {
     const spacing = this.dataset.spacing[axis] || 1;
     const plane = Math.min(this.dataset.size[axis] - 1, Math.max(0, Math.floor(p[axis] / spacing)));
     const label = v.el.querySelector('.position');
-    label.textContent = `${'xyz'[axis]} = ${formatLength(Math.round(p[axis] * 100) / 100)} · plane ${plane + 1}/${this.dataset.size[axis]}`;
+    label.textContent = `${formatLength(Math.round(p[axis] * 100) / 100)} · ${plane + 1}/${this.dataset.size[axis]}`;
+    label.title = `${'xyz'[axis]} = ${formatLength(p[axis])}, plane ${plane + 1} of ${this.dataset.size[axis]}`;
     drawScaleBar(ctx, sliceUmPerPixel(v.id, e, v.cssWidth, v.cssHeight), v.cssWidth, v.cssHeight);
   }
 
