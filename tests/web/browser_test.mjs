@@ -39,6 +39,7 @@ let server = null;     // {proc, url, port, stderr}
 let browser = null;
 let page = null;
 const consoleErrors = [];
+const foreignRequests = [];  // The page must need nothing but its own server (no CDN).
 let expectConnectionErrors = false;
 
 // ---- the server ----
@@ -204,6 +205,12 @@ async function openPage(query, options = {}) {
     consoleErrors.push(m.text());
   });
   p.on('pageerror', (e) => consoleErrors.push(`pageerror: ${e.message}`));
+  p.on('request', (r) => {
+    const u = new URL(r.url());
+    if (!['127.0.0.1', 'localhost'].includes(u.hostname) && u.protocol !== 'data:' && u.protocol !== 'blob:') {
+      foreignRequests.push(r.url());
+    }
+  });
   await p.goto(`http://127.0.0.1:${server.port}/?token=${TOKEN}${query}`);
   return p;
 }
@@ -411,6 +418,10 @@ test('enlarge and restore a view; help overlay', async () => {
   assert.ok(s.width > 2 * small.width, `the enlarged canvas is larger (${small.width} → ${s.width})`);
   assert.ok(Math.abs(f.width - s.width) <= 1 && Math.abs(f.height - s.height) <= 1,
       `enlarged y view rendered at its size (${f.width}×${f.height}, canvas ${s.width}×${s.height})`);
+  await page.keyboard.press('.');
+  await waitFor(async () => /fps [0-9.]+[\s\S]*rtt [0-9]+ ms[\s\S]*KB\/frame[\s\S]*bricks pending/.test(
+      await page.textContent('#stats')), 'the stats overlay', 10000);
+  await page.keyboard.press('.');
   await page.keyboard.press('?');
   assert.ok(await page.locator('#help').isVisible());
   await shot('10-help');
@@ -511,6 +522,7 @@ test('a lost connection is shown and recovers with the view restored', async () 
   console.log(`banner "${banner}"; reconnected, frame ${f.frameId}`);
 });
 
-test('no console errors', () => {
+test('no console errors, no request beyond the server', () => {
   assert.deepEqual(consoleErrors, []);
+  assert.deepEqual(foreignRequests, []);
 });
