@@ -38,9 +38,12 @@ const KEY_NAMES = {ArrowLeft: '←', ArrowRight: '→', ArrowUp: '↑', ArrowDow
 // The action for a keyboard event, or null.
 export function actionFor(event) {
   const t = event.target;
-  if (t && (t.tagName === 'INPUT' || t.tagName === 'SELECT' || t.tagName === 'TEXTAREA') &&
-      event.key !== 'Escape') {
-    return null;
+  if (t && event.key !== 'Escape') {
+    // Text fields take every key; sliders and checkboxes keep arrows and paging to themselves.
+    const type = t.tagName === 'INPUT' ? (t.type || 'text') : '';
+    if (t.tagName === 'SELECT' || t.tagName === 'TEXTAREA' || t.isContentEditable) return null;
+    if (t.tagName === 'INPUT' && !['range', 'checkbox', 'radio', 'button', 'color'].includes(type)) return null;
+    if (t.tagName === 'INPUT' && /^(Arrow|Page)/.test(event.key)) return null;
   }
   if (event.ctrlKey || event.metaKey || event.altKey) return null;
   const entry = SHORTCUTS.find((s) => s.keys.includes(event.key));

@@ -125,6 +125,11 @@ test('clip planes sweep the volume: t = 1 keeps every corner, t = 0 none', () =>
 
 test('shortcuts ignore form fields and every listed key has an action', () => {
   assert.equal(actionFor({key: 'm', target: {tagName: 'INPUT'}}), null);
+  assert.equal(actionFor({key: 'm', target: {tagName: 'INPUT', type: 'number'}}), null);
+  assert.equal(actionFor({key: 'm', target: {tagName: 'INPUT', type: 'range'}}), 'mode');
+  assert.equal(actionFor({key: 'ArrowLeft', target: {tagName: 'INPUT', type: 'range'}}), null);
+  assert.equal(actionFor({key: 'ArrowLeft', target: {tagName: 'CANVAS'}}), 'orbit');
+  assert.equal(actionFor({key: 'Escape', target: {tagName: 'INPUT'}}), 'escape');
   assert.equal(actionFor({key: 'm', target: {tagName: 'DIV'}}), 'mode');
   assert.equal(actionFor({key: 'm', ctrlKey: true, target: {tagName: 'DIV'}}), null);
   const keys = SHORTCUTS.flatMap((s) => s.keys);
