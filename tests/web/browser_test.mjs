@@ -369,8 +369,19 @@ test('orbit drag, MIP/DVR switch and a channel toggle change the frame', async (
   assert.ok(toggleDiff > 2, `hiding channel 2 changed the frame (mean diff ${toggleDiff})`);
   await shot('07-channel-2-hidden');
   await page.check('.channel[data-channel="1"] input.visible');
-  await waitForFinal('3d', toggled.stateVersion);
-  console.log(`mean differences: orbit ${dragDiff.toFixed(1)}, mode ${modeDiff.toFixed(1)}, channel ${toggleDiff.toFixed(1)}`);
+  // A clipping plane (z, through the middle) cuts the volume; removing it restores the frame.
+  const restored = await waitForFinal('3d', toggled.stateVersion);
+  await canvasStats('3d', 'before-clip');
+  await page.click('#add-clip');
+  const clipped = await waitForFinal('3d', restored.stateVersion);
+  const clipDiff = await differenceFrom('3d', 'before-clip');
+  const planes = await page.evaluate(() => window.octoscope.state.params.clip_planes);
+  assert.equal(planes.length, 1);
+  assert.ok(clipDiff > 2, `a clipping plane changed the frame (mean diff ${clipDiff})`);
+  await shot('07b-clip-plane');
+  await page.click('#clip-planes .remove');
+  await waitForFinal('3d', clipped.stateVersion);
+  console.log(`mean differences: orbit ${dragDiff.toFixed(1)}, mode ${modeDiff.toFixed(1)}, channel ${toggleDiff.toFixed(1)}, clip ${clipDiff.toFixed(1)}`);
 });
 
 test('a slice drag moves its plane in the 3-D view; a click moves the other two planes', async () => {
