@@ -14,6 +14,7 @@ packages=(
   libgtest-dev googletest
   clang libclang-rt-14-dev
   python3-numpy python3-zarr python3-numcodecs python3-h5py
+  nodejs chromium
 )
 
 # Skip apt entirely when everything is already there (fast re-runs, offline machines).
@@ -21,6 +22,9 @@ missing=()
 for p in "${packages[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'install ok installed' || missing+=("$p")
 done
+# npm: Debian's package, unless the installed Node.js brings its own (e.g. NodeSource's nodejs,
+# which conflicts with Debian's npm). The browser tests install playwright-core with it.
+if ! command -v npm >/dev/null 2>&1; then missing+=(npm); fi
 if ((${#missing[@]} == 0)); then
   echo "install_deps: all ${#packages[@]} packages present"
   exit 0
