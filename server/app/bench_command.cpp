@@ -1018,7 +1018,14 @@ int RunBenchRender(std::span<const std::string> args) {
          << " ms vs " << Format("%.1f", k->dense.ms_kernel) << " ms. Errors against the reference: "
          << "octree " << error_text(k->octree_dense.error) << "; plain kernel "
          << error_text(k->dense.error) << "; max |octree − plain| "
-         << Format("%.4f", k->octree_vs_dense_max_err) << ".\n";
+         << Format("%.4f", k->octree_vs_dense_max_err) << "."
+         << (tree_stats.bricks < tree_stats.nodes
+                 ? " NOT a like-for-like sample rate: " +
+                       std::to_string(tree_stats.nodes - tree_stats.bricks) +
+                       " nodes have no brick (homogeneous), and their samples read the node's "
+                       "average instead of 8 voxels."
+                 : std::string())
+         << "\n";
     head << "- **(a1) " << name << ": plain kernel frame " << Format("%.1f", k->dense.ms)
          << " ms ÷ octree renderer frame " << Format("%.1f", k->octree.ms)
          << " ms = " << Format("%.2f", frame) << "×** (goal ≥ 3, sparse data); " << where
