@@ -11,10 +11,17 @@
  * function and compositing (DVR with early termination; MIP/MinIP over stored values).
  * Its images equal the renderer's at level 0 (tests/bench/dense_kernel_test.cpp).
  *
- * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP).
+ * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP) and
+ * OCTO_DENSE_ACTIVE, the number of enabled channels (at least 1; the host passes
+ * max(1, f.active_channels)), so the channel loops and the ray state have a fixed size, as a
+ * hand-written kernel for one dataset would.
  */
 #include "ray_common.cl"
 #include "render_format.h"
+
+#ifndef OCTO_DENSE_ACTIVE
+#define OCTO_DENSE_ACTIVE 1
+#endif
 
 /* The 2x2x2 voxels around p (level-0 voxel coordinates, voxel v covers [v, v + 1)), clamped to
  * the edge voxels: first voxel's offset, offsets to the second voxel per axis (0 at the last
@@ -73,8 +80,8 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
   const int3 n = convert_int3((float3)(f.volume[0], f.volume[1], f.volume[2]));
 
   float4 acc = (float4)(0.0f);
-  float extreme[OCTO_MAX_ACTIVE_CHANNELS];
-  for (int k = 0; k < f.active_channels; ++k) {
+  float extreme[OCTO_DENSE_ACTIVE];
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
     /* "Not sampled": outside [0, 65535]; any stored value replaces it. */
     extreme[k] = OCTO_MODE == OCTO_MODE_MIP ? -1.0f : INFINITY;
   }
@@ -102,7 +109,7 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
       float3 mix_rgb = (float3)(0.0f);
       float transmit = 1.0f;
 #endif
-      for (int k = 0; k < f.active_channels; ++k) {
+      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
         OctoDenseFootprint fp = shared;
         if (!channels[k].identity) {
           float3 q;

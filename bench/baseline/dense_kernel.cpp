@@ -94,19 +94,23 @@ Result<RenderImage> DenseKernel::Render(const Camera& camera, const RenderParams
                                         DenseKernelStats* stats) {
   OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, channel_count_));
   const Clock::time_point start = Clock::now();
-  const int define = render::KernelModeDefine(params.mode);
-  auto it = kernels_.find(define);
-  if (it == kernels_.end()) {
-    OCTO_ASSIGN_OR_RETURN(ClKernel kernel,
-                          programs_->CreateKernel("dense_baseline.cl", "DenseRayCast",
-                                                  "-DOCTO_MODE=" + std::to_string(define)));
-    it = kernels_.emplace(define, std::move(kernel)).first;
-  }
-  const cl_kernel kernel = it->second.get();
-
   // Level 0 everywhere (the kernel has no levels) and no skipping: the frame as the renderer's.
   const render::PackedFrame packed =
       render::PackRenderFrame(camera, params, 0, false, size_, spacing_);
+  // One program per (mode, enabled channel count).
+  const std::pair<int, int> key{render::KernelModeDefine(params.mode),
+                                std::max(1, packed.frame.active_channels)};
+  auto it = kernels_.find(key);
+  if (it == kernels_.end()) {
+    OCTO_ASSIGN_OR_RETURN(
+        ClKernel kernel,
+        programs_->CreateKernel("dense_baseline.cl", "DenseRayCast",
+                                "-DOCTO_MODE=" + std::to_string(key.first) +
+                                    " -DOCTO_DENSE_ACTIVE=" + std::to_string(key.second)));
+    it = kernels_.emplace(key, std::move(kernel)).first;
+  }
+  const cl_kernel kernel = it->second.get();
+
   const render::ComputeContext& ctx = *context_;
   OCTO_ASSIGN_OR_RETURN(
       ClMem channel_buffer,

@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <map>
 #include <span>
+#include <utility>
 #include <vector>
 
 #include "render/camera.h"
@@ -74,7 +75,8 @@ class DenseKernel {
   render::ClMem counters_;
   render::ClMem image_;  // float4 per pixel, grown on demand.
   size_t image_pixels_ = 0;
-  std::map<int, render::ClKernel> kernels_;  // Per OCTO_MODE value, created on first use.
+  // Per (OCTO_MODE, enabled channel count), created on first use.
+  std::map<std::pair<int, int>, render::ClKernel> kernels_;
 };
 
 }  // namespace octoscope::bench

@@ -560,13 +560,11 @@ struct FrameTiming {
   uint64_t samples = 0;
 };
 
-// Medians of `repeats` calls of `frame` (which renders into *image and returns its timing).
-template <typename FrameFn>
-Result<Timed> TimeFrames(int repeats, FrameFn frame) {
+// Medians of the frames' timings.
+Timed Summarize(const std::vector<FrameTiming>& frames, RenderImage image) {
   Timed t;
   std::vector<double> ms, kernel_ms, rate;
-  for (int i = 0; i < repeats; ++i) {
-    OCTO_ASSIGN_OR_RETURN(const FrameTiming f, frame(&t.image));
+  for (const FrameTiming& f : frames) {
     ms.push_back(f.ms);
     kernel_ms.push_back(f.ms_kernel);
     rate.push_back(f.ms_kernel > 0 ? f.samples / (f.ms_kernel * 1e3) : 0);
@@ -575,63 +573,65 @@ Result<Timed> TimeFrames(int repeats, FrameFn frame) {
   t.ms = Median(ms);
   t.ms_kernel = Median(kernel_ms);
   t.msamples = Median(rate);
+  t.image = std::move(image);
   return t;
 }
 
-// The octree renderer at level 0 with everything the view needs resident (made so by a
-// refinement, then full frames until none requests anything), `repeats` timed full frames.
-Result<Timed> MeasureOctreeLevel0(const Bench& b, const Camera& camera, const RenderParams& params,
-                                  bool skip_empty, int repeats, bool* steady) {
+// A renderer at level 0 with everything the view needs resident (made so by a refinement, then
+// full frames until none requests anything); *steady tells whether that was reached.
+Result<Renderer> ResidentLevel0(const Bench& b, const Camera& camera, const RenderParams& params,
+                                const render::FrameOptions& options, bool* steady) {
   OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, b.large_bytes));
-  render::FrameOptions options;
-  options.mode = render::FrameMode::kRefine;
-  options.lod_bias = -32;  // Level 0 everywhere.
-  options.max_passes = kMaxPasses;
-  options.skip_empty_space = skip_empty;
+  render::FrameOptions refine = options;
+  refine.mode = render::FrameMode::kRefine;
+  refine.max_passes = kMaxPasses;
   render::FrameStats stats;
-  OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, options, &stats).status());
-  options.mode = render::FrameMode::kFullFrame;
+  OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, refine, &stats).status());
   *steady = false;
   for (int frame = 0; frame < kMaxWarmupFrames && !*steady; ++frame) {
     stats = {};
     OCTO_RETURN_IF_ERROR(r.renderer->RenderFullFrame(camera, params, options, &stats).status());
     *steady = stats.requests == 0;
   }
-  return TimeFrames(repeats, [&](RenderImage* image) -> Result<FrameTiming> {
-    render::FrameStats s;
-    OCTO_ASSIGN_OR_RETURN(*image, r.renderer->RenderFullFrame(camera, params, options, &s));
-    return FrameTiming{s.ms_total, s.ms_kernel, s.samples};
-  });
-}
-
-// The headline view of the dense kernel, `repeats` timed frames (after one untimed: the driver may
-// compile per launch size).
-Result<Timed> MeasureDense(bench::DenseKernel& dense, const Camera& camera,
-                           const RenderParams& params, int repeats) {
-  OCTO_RETURN_IF_ERROR(dense.Render(camera, params).status());
-  return TimeFrames(repeats, [&](RenderImage* image) -> Result<FrameTiming> {
-    bench::DenseKernelStats s;
-    OCTO_ASSIGN_OR_RETURN(*image, dense.Render(camera, params, &s));
-    return FrameTiming{s.ms_total, s.ms_kernel, s.samples};
-  });
+  return r;
 }
 
 // Headline (a): at level 0 with everything resident, the octree renderer (skipping on and off),
-// the plain dense kernel and the C++ loop, same view, size and step, one after the other.
-// Medians of `repeats` frames each.
+// the plain dense kernel and the C++ loop, same view, size and step. The three OpenCL renderers
+// take turns frame by frame (load changes on a shared machine hit them alike); medians of
+// `repeats` frames each.
 Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, bench::DenseKernel& dense,
                                          const bench::CpuRaycaster& loop, RenderMode mode, int size,
                                          int repeats) {
   KernelVsLoop k;
   const RenderParams params = b.loaded->Params(mode, 1);
   OCTO_ASSIGN_OR_RETURN(Camera camera, ViewCamera("iso", b.box, size));
+  render::FrameOptions on;
+  on.lod_bias = -32;  // Level 0 everywhere.
+  render::FrameOptions off = on;
+  off.skip_empty_space = false;
   bool steady_on = false, steady_off = false;
-  OCTO_ASSIGN_OR_RETURN(k.octree,
-                        MeasureOctreeLevel0(b, camera, params, true, repeats, &steady_on));
-  OCTO_ASSIGN_OR_RETURN(k.octree_dense,
-                        MeasureOctreeLevel0(b, camera, params, false, repeats, &steady_off));
+  OCTO_ASSIGN_OR_RETURN(Renderer r_on, ResidentLevel0(b, camera, params, on, &steady_on));
+  OCTO_ASSIGN_OR_RETURN(Renderer r_off, ResidentLevel0(b, camera, params, off, &steady_off));
   k.steady = steady_on && steady_off;
-  OCTO_ASSIGN_OR_RETURN(k.dense, MeasureDense(dense, camera, params, repeats));
+  // The dense kernel's first launch builds its program (and PoCL compiles per launch size).
+  OCTO_RETURN_IF_ERROR(dense.Render(camera, params).status());
+  std::vector<FrameTiming> t_on, t_off, t_dense;
+  RenderImage i_on, i_off, i_dense;
+  for (int i = 0; i < repeats; ++i) {
+    for (auto [r, options, timings, image] :
+         {std::tuple{&r_on, &on, &t_on, &i_on}, std::tuple{&r_off, &off, &t_off, &i_off}}) {
+      render::FrameStats s;
+      OCTO_ASSIGN_OR_RETURN(*image, r->renderer->RenderFullFrame(camera, params, *options, &s));
+      timings->push_back({s.ms_total, s.ms_kernel, s.samples});
+    }
+    bench::DenseKernelStats s;
+    OCTO_ASSIGN_OR_RETURN(i_dense, dense.Render(camera, params, &s));
+    t_dense.push_back({s.ms_total, s.ms_kernel, s.samples});
+  }
+  k.octree = Summarize(t_on, std::move(i_on));
+  k.octree_dense = Summarize(t_off, std::move(i_off));
+  k.dense = Summarize(t_dense, std::move(i_dense));
 
   std::vector<double> loop_ms;
   RenderImage loop_image;
