@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Benchmark: speed against error of the OpenCL renderer (`octoscope bench render`), with the
-# headline ratios against the hand-written multi-threaded C++ loop measured in the same run.
+# headline ratios against two baselines measured in the same run on the same view: the plain
+# dense OpenCL kernel (the volume as one device array, bench/baseline/dense_kernel.h) and the
+# hand-written multi-threaded C++ loop (bench/baseline/cpu_raycaster.h).
 # Builds (Release) when the binary is missing, writes the demo specimen in memory (no file), runs
 # the sweep and leaves docs-ready output in $OCTOSCOPE_BENCH_DIR (default out/bench-render):
 #   render_bench.md   the headlines and the table (also printed)
@@ -11,6 +13,7 @@
 # Usage: bash bench/render.sh [DEMO_SIZE] [extra `bench render` flags...]
 #   DEMO_SIZE 512 (default) is the issue's case; 128 or 256 for a shorter run.
 #   e.g. bash bench/render.sh 256 --sizes 128,256 --reference-size 128
+#   sparse: bash bench/render.sh 512 --sizes 256 --headline-only --embryo-percent 30 --threshold 0.05
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 build="${OCTOSCOPE_BUILD_DIR:-$root/build}"

@@ -19,55 +19,16 @@
 #include "feedback.h"
 #include "node_format.h"
 #include "octree_sampling.cl"
+#include "ray_common.cl"
 #include "render_format.h"
 
-#ifndef OCTO_MODE
-#define OCTO_MODE OCTO_MODE_DVR
-#endif
 #ifndef OCTO_REFINE
 #define OCTO_REFINE 0
 #endif
 
-/* Float rounding of the interval (a few ulps of the t values) must not grow or drop a sliver
- * segment where the reference (double, 1e-9) would not: lengths within this many ulps of |t| of
- * a step multiple count as that multiple. */
-#define OCTO_SLIVER_ULPS 4.0f
-
 /* Full frame: a resident ancestor more than this many levels above the wanted node is too coarse;
  * the wanted node's average is used instead. */
 #define OCTO_MAX_FALLBACK_LEVELS 2
-
-/* WindowedValue of render_params.h: window, clamp to [0, 1], gamma. */
-float OctoWindowed(__global const OctoChannelParams* ch, float v) {
-  float t = clamp((v - ch->window_lo) * ch->inv_window, 0.0f, 1.0f);
-  if (ch->gamma != 1.0f) t = pow(t, ch->gamma);
-  return t;
-}
-
-/* TransferFunction of render_params.h: straight RGBA, alpha scaled and clamped. */
-float4 OctoTransfer(__global const OctoChannelParams* ch, __global const float4* lut, float t) {
-  t = clamp(t, 0.0f, 1.0f);
-  float4 rgba;
-  if (ch->lut >= 0) {
-    /* Linear interpolation between entries; entry i sits at t = i / 255. */
-    const float x = t * (float)(OCTO_LUT_ENTRIES - 1);
-    const int i0 = min((int)x, OCTO_LUT_ENTRIES - 1);
-    const int i1 = min(i0 + 1, OCTO_LUT_ENTRIES - 1);
-    __global const float4* entries = lut + (size_t)ch->lut * OCTO_LUT_ENTRIES;
-    rgba = mix(entries[i0], entries[i1], x - (float)i0);
-  } else {
-    rgba = (float4)(ch->color[0] * t, ch->color[1] * t, ch->color[2] * t, t);
-  }
-  rgba.w = clamp(rgba.w * ch->opacity_scale, 0.0f, 1.0f);
-  return rgba;
-}
-
-/* CorrectOpacity of render_params.h: 1 - (1 - a)^ratio, precise for tiny alphas. */
-float OctoCorrectOpacity(float a, float ratio) {
-  if (a <= 0.0f) return 0.0f;
-  if (a >= 1.0f) return 1.0f;
-  return -expm1(ratio * log1p(-a));
-}
 
 /* floor(log2(footprint)) clamped to the tree's levels; ilogb is exact at powers of two. */
 int OctoLevelOf(float footprint, OctoTreeGeometry g) {
@@ -82,25 +43,6 @@ float3 OctoClampToLevel(float3 p, int level, OctoTreeGeometry g) {
   /* Scaling by powers of two is exact: the same as dividing by 2^level. */
   const float3 q = clamp(p * ldexp(1.0f, -level), 0.5f, convert_float3(size) - 0.5f);
   return q * ldexp(1.0f, level);
-}
-
-/* The position of a channel's sample: transform * p; false when it leaves the volume box. */
-bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRenderFrame f,
-                         float3* q) {
-  if (ch->identity) {
-    *q = p;
-    return true;
-  }
-  const __global float* m = ch->transform;
-  const float3 r = (float3)(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
-                            m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
-                            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
-  /* Rounding may leave the box by a hair; anything further gives no sample. */
-  const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
-  const float tolerance = 1e-5f * fmax(box.x, fmax(box.y, box.z));
-  if (!(all(r >= -tolerance) && all(r <= box + tolerance))) return false;
-  *q = r;
-  return true;
 }
 
 /* Whether the wanted node of `hit` has a brick that is not resident (a deeper node than `hit`'s
@@ -178,39 +120,6 @@ float OctoSourceRead(__global const uint* nodes, OctoTreeGeometry g, OctoSource 
   return OctoNodeAverage(nodes, src.average_node, g, c);
 }
 
-/* Adds n to the 64-bit sample counter held as two uint words (carry on wrap-around). */
-void OctoAddSamples(volatile __global uint* counters, uint n) {
-  if (n == 0u) return;
-  const uint old = atomic_add(&counters[OCTO_COUNTER_SAMPLES_LO], n);
-  if (old + n < old) atomic_inc(&counters[OCTO_COUNTER_SAMPLES_HI]);
-}
-
-/* The pixel of the current ray state (DVR: composited over the background; MIP/MinIP: the
- * extrema's colours added onto it), clamped to [0, 1]. */
-float4 OctoFinishPixel(OctoRenderFrame f, __global const OctoChannelParams* channels,
-                       __global const float4* lut, float4 acc, const float* extreme) {
-  const float4 bg = (float4)(f.background[0], f.background[1], f.background[2], f.background[3]);
-  float4 out;
-#if OCTO_MODE == OCTO_MODE_DVR
-  (void)channels;
-  (void)lut;
-  (void)extreme;
-  out = acc + (1.0f - acc.w) * bg;
-#else
-  (void)acc;
-  out = bg;
-  bool any = false;
-  for (int k = 0; k < f.active_channels; ++k) {
-    const float e = extreme[k];
-    if (!(e >= 0.0f && e <= 65535.0f)) continue; /* Never sampled. */
-    any = true;
-    out.xyz += OctoTransfer(&channels[k], lut, OctoWindowed(&channels[k], e)).xyz;
-  }
-  if (any) out.w = 1.0f;
-#endif
-  return clamp(out, 0.0f, 1.0f);
-}
-
 __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g,
                       OctoRenderFrame f, __global const OctoChannelParams* channels,
                       __global const float4* lut, volatile __global uint* request_flags,
@@ -234,58 +143,14 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
   const uint first = 0u;
 #endif
 
-  /* The pixel's ray (Camera::PixelRay), in voxel space with the physical parameter t. */
-  const float3 forward = (float3)(f.forward[0], f.forward[1], f.forward[2]);
-  const float3 right = (float3)(f.right[0], f.right[1], f.right[2]);
-  const float3 up = (float3)(f.up[0], f.up[1], f.up[2]);
-  const float dx = ((float)px + 0.5f - 0.5f * (float)f.width) * f.pixel_scale;
-  const float dy = (0.5f * (float)f.height - ((float)py + 0.5f)) * f.pixel_scale;
-  float3 o = (float3)(f.origin[0], f.origin[1], f.origin[2]);
-  float3 d;
-  float cos_forward = 1.0f; /* Cosine between the ray and forward (perspective distance). */
-  if (f.projection == OCTO_PROJECTION_ORTHO) {
-    o += right * dx + up * dy;
-    d = forward;
-  } else {
-    /* |forward + right dx + up dy| = sqrt(1 + dx^2 + dy^2) for the orthonormal physical frame. */
-    cos_forward = rsqrt(1.0f + dx * dx + dy * dy);
-    d = (forward + right * dx + up * dy) * cos_forward;
-  }
-
-  /* Clip to the box [0, n] (faces inclusive) and the planes, exactly like ClipRayToVolume. */
-  float t0 = f.t_min;
-  float t1 = INFINITY;
-  bool hit_box = true;
-  const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
-  for (int a = 0; a < 3; ++a) {
-    const float oa = a == 0 ? o.x : (a == 1 ? o.y : o.z);
-    const float da = a == 0 ? d.x : (a == 1 ? d.y : d.z);
-    const float hi = a == 0 ? box.x : (a == 1 ? box.y : box.z);
-    if (da == 0.0f) {
-      if (oa < 0.0f || oa > hi) hit_box = false;
-      continue;
-    }
-    const float ta = (0.0f - oa) / da;
-    const float tb = (hi - oa) / da;
-    t0 = fmax(t0, fmin(ta, tb));
-    t1 = fmin(t1, fmax(ta, tb));
-  }
-  for (int k = 0; k < f.clip_count; ++k) {
-    const float3 n = (float3)(f.clip[k][0], f.clip[k][1], f.clip[k][2]);
-    const float nd = dot(n, d);
-    const float rest = f.clip[k][3] - dot(n, o);
-    if (nd == 0.0f) {
-      if (rest < 0.0f) hit_box = false;
-      continue;
-    }
-    const float t = rest / nd;
-    if (nd > 0.0f) {
-      t1 = fmin(t1, t);
-    } else {
-      t0 = fmax(t0, t);
-    }
-  }
-  const bool empty = !hit_box || !(t1 > t0) || !isfinite(t1) || f.active_channels == 0;
+  /* The pixel's ray, clipped to the box and the planes. */
+  const OctoRay ray = OctoPixelRay(f, px, py);
+  const float3 o = ray.o;
+  const float3 d = ray.d;
+  const float t0 = ray.t0;
+  const float t1 = ray.t1;
+  const float cos_forward = ray.cos_forward;
+  const bool empty = ray.empty;
 
   /* Ray state: accumulated premultiplied colour (DVR) or per-channel extremum (MIP/MinIP). */
   float4 acc = (float4)(0.0f);
@@ -449,11 +314,9 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         ++samples;
 #if OCTO_MODE == OCTO_MODE_DVR
         /* Per-sample intermixing: premultiplied colours add, alphas combine. */
-        const float4 rgba = OctoTransfer(&channels[k], lut, OctoWindowed(&channels[k], v));
-        if (rgba.w != 0.0f) transparent = false;
-        const float a = OctoCorrectOpacity(rgba.w, ratio);
-        mix_rgb += rgba.xyz * a;
-        transmit *= 1.0f - a;
+        if (OctoMixChannel(&channels[k], lut, v, ratio, &mix_rgb, &transmit) != 0.0f) {
+          transparent = false;
+        }
 #elif OCTO_MODE == OCTO_MODE_MIP
         /* Stored-value extremum: the window (width > 0, gamma > 0) is monotone, so it is applied
          * once when the pixel is finished. */
@@ -464,10 +327,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       }
       uint next = j + 1u; /* Band-local. */
 #if OCTO_MODE == OCTO_MODE_DVR
-      const float mix_a = 1.0f - transmit;
-      /* Colours never beyond the mixed opacity (render_params.h). */
-      acc.xyz += (1.0f - acc.w) * fmin(mix_rgb, (float3)(mix_a));
-      acc.w += (1.0f - acc.w) * mix_a;
+      acc = OctoCompositeUnder(acc, mix_rgb, transmit);
       if (acc.w >= 0.999f) break; /* Early termination. */
       const bool skippable = transparent;
 #else

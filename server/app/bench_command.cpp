@@ -1,7 +1,9 @@
 // `octoscope bench render`: speed against error of the OpenCL renderer (docs/benchmarks.md,
 // "Rendering"). Renders fixed views of a volume over a sweep of settings, compares every image
-// with the double-precision CPU reference renderer, and measures the kernels against the
-// hand-written multi-threaded C++ loop (bench/baseline/cpu_raycaster.h) in the same run.
+// with the double-precision CPU reference renderer, and measures the octree renderer against two
+// baselines in the same run, on the same view: the plain dense OpenCL kernel (the volume as one
+// device array, bench/baseline/dense_kernel.h) and the hand-written multi-threaded C++ loop
+// (bench/baseline/cpu_raycaster.h).
 //
 // Flow: load the volume into RAM as stored uint16 (the C++ loop's input), build its octree in
 // memory (the renderer's input), render the reference images ONCE per (view, mode, size) — at
@@ -38,6 +40,7 @@
 #include "app/flags.h"
 #include "app/volume_options.h"
 #include "baseline/cpu_raycaster.h"
+#include "baseline/dense_kernel.h"
 #include "io/open_volume.h"
 #include "io/synthetic_embryo.h"
 #include "octree/octree.h"
@@ -520,56 +523,115 @@ T Median(std::vector<T> v) {
   return v[v.size() / 2];
 }
 
+// One renderer's level-0 frames of the headline view: medians of the timed repeats, the image's
+// error against the reference.
+struct Timed {
+  double msamples = 0;   // Channel samples / kernel ms.
+  double ms = 0;         // Whole frame call (median).
+  double ms_kernel = 0;  // Kernel only (median).
+  uint64_t samples = 0;
+  ImageError error;  // Against the CPU reference (its central crop).
+  RenderImage image;
+};
+
 struct KernelVsLoop {
-  double kernel_msamples = 0;  // Samples / kernel ms.
-  double kernel_ms = 0;        // Frame ms (median).
-  uint64_t kernel_samples = 0;
+  Timed octree;        // The octree renderer, empty-space skipping on (the product).
+  Timed octree_dense;  // The same, skipping off: the plain kernel's sample count.
+  Timed dense;         // The plain dense kernel (bench/baseline/dense_kernel.h).
   double loop_msamples = 0;
   double loop_ms = 0;
   uint64_t loop_samples = 0;
   int loop_threads = 0;
-  double kernel_vs_loop_max_err = 0;  // Level-0 kernel image against the loop's.
-  double loop_vs_reference_max_err = 0;
+  ImageError loop_error;
+  double kernel_vs_loop_max_err = 0;   // Level-0 octree image against the loop's.
+  double octree_vs_dense_max_err = 0;  // Level-0 octree image (skipping off) against the dense one.
   bool steady = false;
 };
 
-// Headline (a): the kernels at level 0 with everything the view needs resident (made so by a
-// refinement, then full frames until none requests anything), against the C++ loop, same view,
-// size and step. Medians of `repeats` frames each.
-Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const bench::CpuRaycaster& loop,
-                                         RenderMode mode, int size, int repeats) {
+ImageError ErrorAgainst(const RenderImage& image, const Bench& b, RenderMode mode, int size) {
+  auto it = b.references->find({"iso", mode, size});
+  return it != b.references->end() ? CompareWithReference(image, it->second) : ImageError{};
+}
+
+// One timed frame of a renderer.
+struct FrameTiming {
+  double ms = 0;
+  double ms_kernel = 0;
+  uint64_t samples = 0;
+};
+
+// Medians of the frames' timings.
+Timed Summarize(const std::vector<FrameTiming>& frames, RenderImage image) {
+  Timed t;
+  std::vector<double> ms, kernel_ms, rate;
+  for (const FrameTiming& f : frames) {
+    ms.push_back(f.ms);
+    kernel_ms.push_back(f.ms_kernel);
+    rate.push_back(f.ms_kernel > 0 ? f.samples / (f.ms_kernel * 1e3) : 0);
+    t.samples = f.samples;
+  }
+  t.ms = Median(ms);
+  t.ms_kernel = Median(kernel_ms);
+  t.msamples = Median(rate);
+  t.image = std::move(image);
+  return t;
+}
+
+// A renderer at level 0 with everything the view needs resident (made so by a refinement, then
+// full frames until none requests anything); *steady tells whether that was reached.
+Result<Renderer> ResidentLevel0(const Bench& b, const Camera& camera, const RenderParams& params,
+                                const render::FrameOptions& options, bool* steady) {
+  OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, b.large_bytes));
+  render::FrameOptions refine = options;
+  refine.mode = render::FrameMode::kRefine;
+  refine.max_passes = kMaxPasses;
+  render::FrameStats stats;
+  OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, refine, &stats).status());
+  *steady = false;
+  for (int frame = 0; frame < kMaxWarmupFrames && !*steady; ++frame) {
+    stats = {};
+    OCTO_RETURN_IF_ERROR(r.renderer->RenderFullFrame(camera, params, options, &stats).status());
+    *steady = stats.requests == 0;
+  }
+  return r;
+}
+
+// Headline (a): at level 0 with everything resident, the octree renderer (skipping on and off),
+// the plain dense kernel and the C++ loop, same view, size and step. The three OpenCL renderers
+// take turns frame by frame (load changes on a shared machine hit them alike); medians of
+// `repeats` frames each.
+Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, bench::DenseKernel& dense,
+                                         const bench::CpuRaycaster& loop, RenderMode mode, int size,
+                                         int repeats) {
   KernelVsLoop k;
   const RenderParams params = b.loaded->Params(mode, 1);
   OCTO_ASSIGN_OR_RETURN(Camera camera, ViewCamera("iso", b.box, size));
-  OCTO_ASSIGN_OR_RETURN(Renderer r, FreshRenderer(b, b.large_bytes));
-  render::FrameOptions options;
-  options.mode = render::FrameMode::kRefine;
-  options.lod_bias = -32;  // Level 0 everywhere.
-  options.max_passes = kMaxPasses;
-  render::FrameStats stats;
-  OCTO_RETURN_IF_ERROR(r.renderer->Render(camera, params, options, &stats).status());
-  options.mode = render::FrameMode::kFullFrame;
-  RenderImage kernel_image;
-  for (int frame = 0; frame < kMaxWarmupFrames; ++frame) {
-    stats = {};
-    OCTO_ASSIGN_OR_RETURN(kernel_image,
-                          r.renderer->RenderFullFrame(camera, params, options, &stats));
-    if (stats.requests == 0) {
-      k.steady = true;
-      break;
-    }
-  }
-  std::vector<double> kernel_ms, kernel_rate;
+  render::FrameOptions on;
+  on.lod_bias = -32;  // Level 0 everywhere.
+  render::FrameOptions off = on;
+  off.skip_empty_space = false;
+  bool steady_on = false, steady_off = false;
+  OCTO_ASSIGN_OR_RETURN(Renderer r_on, ResidentLevel0(b, camera, params, on, &steady_on));
+  OCTO_ASSIGN_OR_RETURN(Renderer r_off, ResidentLevel0(b, camera, params, off, &steady_off));
+  k.steady = steady_on && steady_off;
+  // The dense kernel's first launch builds its program (and PoCL compiles per launch size).
+  OCTO_RETURN_IF_ERROR(dense.Render(camera, params).status());
+  std::vector<FrameTiming> t_on, t_off, t_dense;
+  RenderImage i_on, i_off, i_dense;
   for (int i = 0; i < repeats; ++i) {
-    stats = {};
-    OCTO_ASSIGN_OR_RETURN(kernel_image,
-                          r.renderer->RenderFullFrame(camera, params, options, &stats));
-    kernel_ms.push_back(stats.ms_total);
-    kernel_rate.push_back(stats.ms_kernel > 0 ? stats.samples / (stats.ms_kernel * 1e3) : 0);
-    k.kernel_samples = stats.samples;
+    for (auto [r, options, timings, image] :
+         {std::tuple{&r_on, &on, &t_on, &i_on}, std::tuple{&r_off, &off, &t_off, &i_off}}) {
+      render::FrameStats s;
+      OCTO_ASSIGN_OR_RETURN(*image, r->renderer->RenderFullFrame(camera, params, *options, &s));
+      timings->push_back({s.ms_total, s.ms_kernel, s.samples});
+    }
+    bench::DenseKernelStats s;
+    OCTO_ASSIGN_OR_RETURN(i_dense, dense.Render(camera, params, &s));
+    t_dense.push_back({s.ms_total, s.ms_kernel, s.samples});
   }
-  k.kernel_ms = Median(kernel_ms);
-  k.kernel_msamples = Median(kernel_rate);
+  k.octree = Summarize(t_on, std::move(i_on));
+  k.octree_dense = Summarize(t_off, std::move(i_off));
+  k.dense = Summarize(t_dense, std::move(i_dense));
 
   std::vector<double> loop_ms;
   RenderImage loop_image;
@@ -582,10 +644,12 @@ Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, const bench::CpuRaycast
   }
   k.loop_ms = Median(loop_ms);
   k.loop_msamples = k.loop_ms > 0 ? k.loop_samples / (k.loop_ms * 1e3) : 0;
-  k.kernel_vs_loop_max_err = CompareWithReference(kernel_image, loop_image).max_abs;
-  if (auto it = b.references->find({"iso", mode, size}); it != b.references->end()) {
-    k.loop_vs_reference_max_err = CompareWithReference(loop_image, it->second).max_abs;
+  k.kernel_vs_loop_max_err = CompareWithReference(k.octree.image, loop_image).max_abs;
+  k.octree_vs_dense_max_err = CompareWithReference(k.octree_dense.image, k.dense.image).max_abs;
+  for (Timed* t : {&k.octree, &k.octree_dense, &k.dense}) {
+    t->error = ErrorAgainst(t->image, b, mode, size);
   }
+  k.loop_error = ErrorAgainst(loop_image, b, mode, size);
   return k;
 }
 
@@ -732,12 +796,16 @@ int RunBenchRender(std::span<const std::string> args) {
       "Speed against error of the OpenCL renderer: renders fixed views (z, x, iso orthographic,\n"
       "one perspective) of INPUT (8/16-bit; default: the demo specimen, built in memory) over\n"
       "a sweep of settings, compares every image with the CPU reference renderer and measures\n"
-      "the kernels against a hand-written multi-threaded C++ loop. Writes DIR/render_bench.md\n"
+      "the renderer against a plain dense OpenCL kernel and a hand-written multi-threaded C++\n"
+      "loop. Writes DIR/render_bench.md\n"
       "(also printed) and DIR/render_bench.svg (speed vs error).");
   flags.SetPositionals("[INPUT]", 0, 1);
   flags.AddValue("demo", "SIZE", "use the demo specimen of SIZE^3 voxels (1 µm isotropic)",
                  "512; 32 with --quick");
   flags.AddValue("channels", "N", "demo channels, 1..4", "3");
+  flags.AddValue("embryo-percent", "P",
+                 "how much of the demo's box the embryo spans per axis, 1..100 (small: sparse)",
+                 "92");
   flags.AddValue("out-dir", "DIR", "output directory", "out/bench-render");
   flags.AddValue("sizes", "LIST", "image sizes (first: the base size)", "256,512,1024");
   flags.AddValue("reference-size", "R",
@@ -765,6 +833,8 @@ int RunBenchRender(std::span<const std::string> args) {
   if (!demo_size.ok()) return Usage(demo_size.status().message(), flags);
   auto channels = flags.GetInt("channels", 3, 1, io::SyntheticEmbryo::kMaxChannels);
   if (!channels.ok()) return Usage(channels.status().message(), flags);
+  auto embryo_percent = flags.GetInt("embryo-percent", 92, 1, 100);
+  if (!embryo_percent.ok()) return Usage(embryo_percent.status().message(), flags);
   auto sizes = ParseSizes(flags.Get("sizes").value_or(quick ? "32" : "256,512,1024"));
   if (!sizes.ok()) return Usage(sizes.status().message(), flags);
   auto reference_size = flags.GetInt("reference-size", quick ? 24 : 256, 8, 4096);
@@ -802,11 +872,13 @@ int RunBenchRender(std::span<const std::string> args) {
     demo.size = {*demo_size, *demo_size, *demo_size};
     demo.channels = static_cast<int>(*channels);
     demo.spacing_um = {1, 1, 1};
+    demo.embryo_percent = static_cast<int>(*embryo_percent);
     auto embryo = io::SyntheticEmbryo::Create(demo);
     if (!embryo.ok()) return Usage(embryo.status().message(), flags);
     source = std::move(*embryo);
     description = "demo " + std::to_string(*demo_size) + "^3 x" + std::to_string(*channels) +
-                  " uint16 (1 µm isotropic)";
+                  " uint16 (1 µm isotropic, embryo " + std::to_string(*embryo_percent) +
+                  " % of the box)";
   }
   std::fprintf(stderr, "bench: loading %s ...\n", description.c_str());
   auto loaded = LoadVolume(*source, description);
@@ -854,6 +926,16 @@ int RunBenchRender(std::span<const std::string> args) {
   for (int c = 0; c < loaded->channel_count(); ++c) {
     const std::span<const uint16_t> ch = loaded->channel(c);
     voxels.emplace_back(ch.begin(), ch.end());
+  }
+  // The plain dense kernel gets the voxels as one device buffer (bench/baseline/dense_kernel.h).
+  std::unique_ptr<bench::DenseKernel> dense;
+  {
+    std::vector<std::span<const uint16_t>> channel_spans;
+    for (const std::vector<uint16_t>& ch : voxels) channel_spans.emplace_back(ch);
+    auto created =
+        bench::DenseKernel::Create(&*context, &programs, loaded->info.size, spacing, channel_spans);
+    if (!created.ok()) return Fail("plain dense kernel: " + created.status().ToString());
+    dense = std::make_unique<bench::DenseKernel>(std::move(*created));
   }
   loaded->volume.reset();
   auto loop = bench::CpuRaycaster::Create(loaded->info.size, spacing, loaded->stored_type,
@@ -908,25 +990,65 @@ int RunBenchRender(std::span<const std::string> args) {
   head << "Errors against the CPU reference renderer at step " << *reference_step
        << " (images larger than " << *reference_size << "² on their central " << *reference_size
        << "² crop); Msamples/s = channel samples per second of kernel time.\n\n";
+  auto error_text = [](const ImageError& e) {
+    return Format("%.1f", e.psnr) + " dB, max_err " + Format("%.4f", e.max_abs);
+  };
   for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
     const std::string name(render::RenderModeName(mode));
-    std::fprintf(stderr, "bench: kernel vs C++ loop, %s ...\n", name.c_str());
-    auto k = MeasureKernelVsLoop(bench, *loop, mode, base, static_cast<int>(*repeats));
+    std::fprintf(stderr, "bench: octree renderer vs plain kernel vs C++ loop, %s ...\n",
+                 name.c_str());
+    auto k = MeasureKernelVsLoop(bench, *dense, *loop, mode, base, static_cast<int>(*repeats));
     if (!k.ok()) return Fail(k.status().WithContext("kernel vs loop " + name).ToString());
-    const double ratio = k->loop_msamples > 0 ? k->kernel_msamples / k->loop_msamples : 0;
-    report.headlines.push_back({"kernel_vs_cpu_msamples_" + name, ratio, 0.7, true,
-                                "iso " + std::to_string(base) + "², step 1, level 0"});
+    const std::string where = "iso " + std::to_string(base) + "², step 1, level 0" +
+                              (k->steady ? "" : " (NOT all resident)");
+    // (a0) The octree and paging cost: per sample, same samples (skipping off).
+    const double per_sample =
+        k->dense.msamples > 0 ? k->octree_dense.msamples / k->dense.msamples : 0;
+    report.headlines.push_back({"octree_vs_dense_kernel_msamples_" + name, per_sample, 0.6, true,
+                                where + ", empty-space skipping off"});
+    // (a1) What the product gives per frame: skipping on, against the plain kernel's frame.
+    const double frame = k->octree.ms > 0 ? k->dense.ms / k->octree.ms : 0;
+    report.headlines.push_back({"dense_kernel_vs_octree_frame_ms_" + name, frame, 3, true,
+                                where + ", plain kernel frame ms / octree frame ms (skipping on)"});
+    head << "- **(a0) " << name << ": octree renderer " << Format("%.1f", k->octree_dense.msamples)
+         << " Msamples/s ÷ plain dense kernel " << Format("%.1f", k->dense.msamples)
+         << " Msamples/s = " << Format("%.2f", per_sample) << "** (goal ≥ 0.6); " << where
+         << ", skipping off: both take the same samples (" << k->octree_dense.samples << " vs "
+         << k->dense.samples << "). Kernel " << Format("%.1f", k->octree_dense.ms_kernel)
+         << " ms vs " << Format("%.1f", k->dense.ms_kernel) << " ms. Errors against the reference: "
+         << "octree " << error_text(k->octree_dense.error) << "; plain kernel "
+         << error_text(k->dense.error) << "; max |octree − plain| "
+         << Format("%.4f", k->octree_vs_dense_max_err) << "."
+         << (tree_stats.bricks < tree_stats.nodes
+                 ? " NOT a like-for-like sample rate: " +
+                       std::to_string(tree_stats.nodes - tree_stats.bricks) +
+                       " nodes have no brick (homogeneous), and their samples read the node's "
+                       "average instead of 8 voxels."
+                 : std::string())
+         << "\n";
+    head << "- **(a1) " << name << ": plain kernel frame " << Format("%.1f", k->dense.ms)
+         << " ms ÷ octree renderer frame " << Format("%.1f", k->octree.ms)
+         << " ms = " << Format("%.2f", frame) << "×** (goal ≥ 3, sparse data); " << where
+         << ", empty-space skipping on (" << k->octree.samples << " samples, "
+         << Format("%.1f", k->octree.msamples) << " Msamples/s; octree "
+         << error_text(k->octree.error) << ").\n";
+    const double ratio = k->loop_msamples > 0 ? k->octree.msamples / k->loop_msamples : 0;
+    report.headlines.push_back(
+        {"kernel_vs_cpu_msamples_" + name, ratio, 0.7, true, where + ", skipping on"});
     report.headlines.push_back({"cpu_vs_kernel_ms_" + name,
-                                k->kernel_ms > 0 ? k->loop_ms / k->kernel_ms : 0, 0, true,
-                                "C++ loop ms / kernel frame ms (includes empty-space skipping)"});
-    head << "- **(a) " << name << ": kernel " << Format("%.1f", k->kernel_msamples)
-         << " Msamples/s ÷ C++ loop " << Format("%.1f", k->loop_msamples) << " Msamples/s ("
-         << k->loop_threads << " threads) = " << Format("%.2f", ratio) << "** (goal ≥ 0.7); iso "
-         << base << "², step 1, level 0 everywhere" << (k->steady ? "" : " (NOT all resident)")
-         << ". Frame: kernel " << Format("%.1f", k->kernel_ms) << " ms (" << k->kernel_samples
-         << " samples) vs C++ loop " << Format("%.1f", k->loop_ms) << " ms (" << k->loop_samples
-         << " samples). max |kernel − loop| " << Format("%.4f", k->kernel_vs_loop_max_err)
-         << ", C++ loop vs reference " << Format("%.4f", k->loop_vs_reference_max_err) << ".\n";
+                                k->octree.ms > 0 ? k->loop_ms / k->octree.ms : 0, 0, true,
+                                "C++ loop ms / octree frame ms (includes empty-space skipping)"});
+    report.headlines.push_back({"dense_kernel_vs_cpu_msamples_" + name,
+                                k->loop_msamples > 0 ? k->dense.msamples / k->loop_msamples : 0, 0,
+                                true, where + ", plain kernel / C++ loop"});
+    head << "- (a) " << name << ": octree renderer " << Format("%.1f", k->octree.msamples)
+         << " Msamples/s (skipping on) ÷ C++ loop " << Format("%.1f", k->loop_msamples)
+         << " Msamples/s (" << k->loop_threads << " threads) = " << Format("%.2f", ratio)
+         << "; plain kernel ÷ C++ loop = "
+         << Format("%.2f", k->loop_msamples > 0 ? k->dense.msamples / k->loop_msamples : 0)
+         << ". Frame: C++ loop " << Format("%.1f", k->loop_ms) << " ms (" << k->loop_samples
+         << " samples), " << error_text(k->loop_error) << "; max |octree − loop| "
+         << Format("%.4f", k->kernel_vs_loop_max_err) << ".\n";
   }
   // (b) refined MIP at the largest size vs one full-resolution C++ loop pass.
   {

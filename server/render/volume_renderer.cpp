@@ -14,6 +14,7 @@
 #include "../../kernels/render_format.h"
 #include "render/cl_call.h"
 #include "render/cl_handles.h"
+#include "render/render_frame.h"
 
 namespace octoscope::render {
 
@@ -57,18 +58,6 @@ double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
 }
 
-int ModeDefine(RenderMode mode) {
-  switch (mode) {
-    case RenderMode::kDvr:
-      return OCTO_MODE_DVR;
-    case RenderMode::kMip:
-      return OCTO_MODE_MIP;
-    case RenderMode::kMinIp:
-      return OCTO_MODE_MINIP;
-  }
-  return OCTO_MODE_DVR;
-}
-
 // Everything the kernel needs besides the octree: the frame struct and the per-channel buffers.
 struct FrameInputs {
   OctoRenderFrame frame{};
@@ -91,98 +80,21 @@ size_t LutFloats(const RenderParams& params) {
   return floats;
 }
 
-// Converts camera and parameters to the kernel's voxel-space frame (render_format.h), writing the
+// Converts camera and parameters to the kernel's voxel-space frame (render_frame.h), writing the
 // per-channel buffers into `buffers` (reserved by the caller with VolumeRenderer::BufferSizes).
 // REQUIRES: params validated for the volume.
 Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera& camera,
                                     const RenderParams& params, const FrameOptions& options,
                                     const octree::BrickGeometry& geometry, const Vec3& spacing,
                                     const FrameBuffers& buffers) {
-  FrameInputs in;
-  OctoRenderFrame& f = in.frame;
-  const Vec3 inv{1 / spacing.x, 1 / spacing.y, 1 / spacing.z};
   const auto& n = geometry.volume_size();
-  const Box3 box = PhysicalBounds({n[0], n[1], n[2]}, spacing);
-  const double reference_um = std::min({spacing.x, spacing.y, spacing.z});
-
-  // Orthographic rays start on the camera plane: move the origin along forward to the volume's
-  // centre (small float coordinates) and start t at minus that shift.
-  Vec3 origin = camera.position();
-  double t_min = 0;
-  const bool ortho = camera.projection() == Projection::kOrthographic;
-  if (ortho) {
-    const double shift = Dot(box.Center() - camera.position(), camera.forward());
-    origin = origin + camera.forward() * shift;
-    t_min = -shift;
-  }
-  auto put = [](float* dst, const Vec3& v) {
-    for (int a = 0; a < 3; ++a) dst[a] = static_cast<float>(v[a]);
-  };
-  put(f.origin, Mul(origin, inv));
-  put(f.forward, Mul(camera.forward(), inv));
-  put(f.right, Mul(camera.right(), inv));
-  put(f.up, Mul(camera.up(), inv));
-  f.projection = ortho ? OCTO_PROJECTION_ORTHO : OCTO_PROJECTION_PERSPECTIVE;
-  const double pixel_scale =
-      ortho ? camera.ortho_height() / camera.height()
-            : 2 * std::tan(camera.fov_y_degrees() * std::numbers::pi / 360.0) / camera.height();
-  f.pixel_scale = static_cast<float>(pixel_scale);
-  f.t_min = static_cast<float>(t_min);
-  // Footprint in finest voxels (ortho) or per µm of distance (perspective), times 2^bias.
-  f.lod_scale = static_cast<float>(pixel_scale * std::exp2(options.lod_bias) / reference_um);
-  f.inv_reference = static_cast<float>(1 / reference_um);
-
-  // Physical plane n . p <= d is (n * s) . p_vox <= d in voxel space.
-  f.clip_count = static_cast<int>(params.clip_planes.size());
-  for (size_t k = 0; k < params.clip_planes.size(); ++k) {
-    put(f.clip[k], Mul(params.clip_planes[k].normal, spacing));
-    f.clip[k][3] = static_cast<float>(params.clip_planes[k].distance);
-  }
-  const double bg_a = params.background[3];
-  for (int k = 0; k < 3; ++k) f.background[k] = static_cast<float>(params.background[k] * bg_a);
-  f.background[3] = static_cast<float>(bg_a);
-  for (int a = 0; a < 3; ++a) f.volume[a] = static_cast<float>(n[a]);
-  f.step = static_cast<float>(params.step_voxels);
-  f.width = camera.width();
-  f.height = camera.height();
-
-  // Enabled channels only, with voxel-space transforms S^-1 T S and their LUTs.
-  std::vector<OctoChannelParams> channels;
-  std::vector<float> lut;
-  bool all_identity = true;
-  for (size_t c = 0; c < params.channels.size(); ++c) {
-    const ChannelParams& cp = params.channels[c];
-    if (!cp.enabled) continue;
-    OctoChannelParams ch{};
-    const Mat4& m = cp.transform;
-    for (int i = 0; i < 3; ++i) {
-      for (int j = 0; j < 3; ++j)
-        ch.transform[i * 4 + j] = static_cast<float>(m(i, j) * spacing[j] * inv[i]);
-      ch.transform[i * 4 + 3] = static_cast<float>(m(i, 3) * inv[i]);
-    }
-    ch.identity = m.IsIdentity() ? 1 : 0;
-    all_identity = all_identity && m.IsIdentity();
-    for (int k = 0; k < 3; ++k) ch.color[k] = static_cast<float>(cp.color[k]);
-    ch.window_lo = static_cast<float>(cp.level - cp.window / 2);
-    ch.inv_window = static_cast<float>(1 / cp.window);
-    ch.gamma = static_cast<float>(cp.gamma);
-    ch.opacity_scale = static_cast<float>(cp.opacity_scale);
-    ch.channel = static_cast<int>(c);
-    ch.lut = -1;
-    if (cp.lut) {
-      ch.lut = static_cast<int>(lut.size() / (4 * kLutEntries));
-      for (const volume::Rgba& e : *cp.lut) {
-        for (uint8_t v : {e.r, e.g, e.b, e.a}) lut.push_back(static_cast<float>(v / 255.0));
-      }
-    }
-    channels.push_back(ch);
-  }
-  in.active = static_cast<int>(channels.size());
-  f.active_channels = in.active;
-  f.all_identity = all_identity ? 1 : 0;
-  f.skip_empty = options.skip_empty_space ? 1 : 0;
-  if (channels.empty()) channels.emplace_back();
-  if (lut.empty()) lut.assign(4, 0.0f);
+  const PackedFrame packed = PackRenderFrame(camera, params, options.lod_bias,
+                                             options.skip_empty_space, {n[0], n[1], n[2]}, spacing);
+  FrameInputs in;
+  in.frame = packed.frame;
+  in.active = packed.frame.active_channels;
+  const std::vector<OctoChannelParams>& channels = packed.channels;
+  const std::vector<float>& lut = packed.lut;
   const ClMem& channel_buffer = buffers.handle(FrameBuffer::kChannels);
   const ClMem& lut_buffer = buffers.handle(FrameBuffer::kLut);
   OCTO_RETURN_IF_ERROR(context.WriteBuffer(channel_buffer, 0, channels.size() * sizeof(channels[0]),
@@ -217,7 +129,7 @@ struct VolumeRenderer::Impl {
   std::unique_ptr<FrameBuffers> own_buffers;  // Full frames of callers that pass none.
 
   Result<cl_kernel> Kernel(RenderMode mode, bool refine) {
-    const auto key = std::make_pair(ModeDefine(mode), refine);
+    const auto key = std::make_pair(KernelModeDefine(mode), refine);
     auto it = kernels.find(key);
     if (it == kernels.end()) {
       const std::string options = build_options + " -DOCTO_MODE=" + std::to_string(key.first) +

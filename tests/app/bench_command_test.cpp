@@ -6,6 +6,7 @@
 #include <cmath>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -114,9 +115,16 @@ TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
   }
   const auto& headlines = report["headlines"];
   ASSERT_GE(headlines.size(), 4u);
+  std::set<std::string> names;
   for (const auto& h : headlines) {
     EXPECT_TRUE(std::isfinite(h["value"].get<double>())) << h.dump();
     EXPECT_GT(h["value"].get<double>(), 0) << h.dump();
+    names.insert(h["name"].get<std::string>());
+  }
+  for (const char* name :
+       {"octree_vs_dense_kernel_msamples_dvr", "octree_vs_dense_kernel_msamples_mip",
+        "dense_kernel_vs_octree_frame_ms_dvr", "dense_kernel_vs_octree_frame_ms_mip"}) {
+    EXPECT_EQ(names.count(name), 1u) << name;
   }
 
   // The markdown table has every column and one line per row.
@@ -132,6 +140,10 @@ TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
   }
   EXPECT_EQ(lines, rows.size() + 1);  // Header + rows (the separator starts with "|-").
   EXPECT_NE(table.find("(a) dvr"), std::string::npos);
+  // The octree renderer against the plain dense kernel (issue 12), with their errors.
+  for (const char* line : {"(a0) dvr", "(a0) mip", "(a1) dvr", "(a1) mip", "plain dense kernel"}) {
+    EXPECT_NE(table.find(line), std::string::npos) << line;
+  }
 
   // The SVG is well-formed and has one marker per row.
   const std::string svg = ReadAll(dir / "render_bench.svg");
@@ -153,6 +165,8 @@ TEST(BenchCommandTest, BadArgumentsAreUsageErrors) {
   EXPECT_EQ(RunOctoscope("bench render --sizes 0").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --sizes 33 --reference-size 24").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --brick 7").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --embryo-percent 0").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --embryo-percent 101").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --no-such-flag").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --help").exit_code, 0);
   EXPECT_EQ(RunOctoscope("bench render /no/such/file.tif").exit_code, 2);

@@ -1,0 +1,199 @@
+/* What every ray caster of a frame shares (kernels/raycast.cl, the renderer; kernels/
+ * dense_baseline.cl, its benchmark baseline): the pixel's ray and its clipping, the transfer
+ * function, opacity correction, channel transforms, the sample counter and the final pixel, each
+ * exactly as render_params.h / camera.h define them (docs/rendering.md), in float.
+ *
+ * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP).
+ */
+#ifndef OCTOSCOPE_KERNELS_RAY_COMMON_CL_
+#define OCTOSCOPE_KERNELS_RAY_COMMON_CL_
+
+#include "render_format.h"
+
+#ifndef OCTO_MODE
+#define OCTO_MODE OCTO_MODE_DVR
+#endif
+
+/* Float rounding of the interval (a few ulps of the t values) must not grow or drop a sliver
+ * segment where the reference (double, 1e-9) would not: lengths within this many ulps of |t| of
+ * a step multiple count as that multiple. */
+#define OCTO_SLIVER_ULPS 4.0f
+
+/* A pixel's ray in voxel space with the physical parameter t, clipped to [t0, t1]. */
+typedef struct OctoRay {
+  float3 o;
+  float3 d;
+  float t0;
+  float t1;
+  float cos_forward; /* Cosine between the ray and forward (perspective distance). */
+  bool empty;        /* Misses the box or the planes, or no channel is enabled. */
+} OctoRay;
+
+/* The ray of pixel (px, py) (Camera::PixelRay), clipped to the box [0, n] (faces inclusive) and
+ * the planes exactly like ClipRayToVolume. */
+OctoRay OctoPixelRay(OctoRenderFrame f, int px, int py) {
+  const float3 forward = (float3)(f.forward[0], f.forward[1], f.forward[2]);
+  const float3 right = (float3)(f.right[0], f.right[1], f.right[2]);
+  const float3 up = (float3)(f.up[0], f.up[1], f.up[2]);
+  const float dx = ((float)px + 0.5f - 0.5f * (float)f.width) * f.pixel_scale;
+  const float dy = (0.5f * (float)f.height - ((float)py + 0.5f)) * f.pixel_scale;
+  float3 o = (float3)(f.origin[0], f.origin[1], f.origin[2]);
+  float3 d;
+  float cos_forward = 1.0f;
+  if (f.projection == OCTO_PROJECTION_ORTHO) {
+    o += right * dx + up * dy;
+    d = forward;
+  } else {
+    /* |forward + right dx + up dy| = sqrt(1 + dx^2 + dy^2) for the orthonormal physical frame. */
+    cos_forward = rsqrt(1.0f + dx * dx + dy * dy);
+    d = (forward + right * dx + up * dy) * cos_forward;
+  }
+
+  float t0 = f.t_min;
+  float t1 = INFINITY;
+  bool hit_box = true;
+  const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
+  for (int a = 0; a < 3; ++a) {
+    const float oa = a == 0 ? o.x : (a == 1 ? o.y : o.z);
+    const float da = a == 0 ? d.x : (a == 1 ? d.y : d.z);
+    const float hi = a == 0 ? box.x : (a == 1 ? box.y : box.z);
+    if (da == 0.0f) {
+      if (oa < 0.0f || oa > hi) hit_box = false;
+      continue;
+    }
+    const float ta = (0.0f - oa) / da;
+    const float tb = (hi - oa) / da;
+    t0 = fmax(t0, fmin(ta, tb));
+    t1 = fmin(t1, fmax(ta, tb));
+  }
+  for (int k = 0; k < f.clip_count; ++k) {
+    const float3 n = (float3)(f.clip[k][0], f.clip[k][1], f.clip[k][2]);
+    const float nd = dot(n, d);
+    const float rest = f.clip[k][3] - dot(n, o);
+    if (nd == 0.0f) {
+      if (rest < 0.0f) hit_box = false;
+      continue;
+    }
+    const float t = rest / nd;
+    if (nd > 0.0f) {
+      t1 = fmin(t1, t);
+    } else {
+      t0 = fmax(t0, t);
+    }
+  }
+  OctoRay r;
+  r.o = o;
+  r.d = d;
+  r.t0 = t0;
+  r.t1 = t1;
+  r.cos_forward = cos_forward;
+  r.empty = !hit_box || !(t1 > t0) || !isfinite(t1) || f.active_channels == 0;
+  return r;
+}
+
+/* WindowedValue of render_params.h: window, clamp to [0, 1], gamma. */
+float OctoWindowed(__global const OctoChannelParams* ch, float v) {
+  float t = clamp((v - ch->window_lo) * ch->inv_window, 0.0f, 1.0f);
+  if (ch->gamma != 1.0f) t = pow(t, ch->gamma);
+  return t;
+}
+
+/* TransferFunction of render_params.h: straight RGBA, alpha scaled and clamped. */
+float4 OctoTransfer(__global const OctoChannelParams* ch, __global const float4* lut, float t) {
+  t = clamp(t, 0.0f, 1.0f);
+  float4 rgba;
+  if (ch->lut >= 0) {
+    /* Linear interpolation between entries; entry i sits at t = i / 255. */
+    const float x = t * (float)(OCTO_LUT_ENTRIES - 1);
+    const int i0 = min((int)x, OCTO_LUT_ENTRIES - 1);
+    const int i1 = min(i0 + 1, OCTO_LUT_ENTRIES - 1);
+    __global const float4* entries = lut + (size_t)ch->lut * OCTO_LUT_ENTRIES;
+    rgba = mix(entries[i0], entries[i1], x - (float)i0);
+  } else {
+    rgba = (float4)(ch->color[0] * t, ch->color[1] * t, ch->color[2] * t, t);
+  }
+  rgba.w = clamp(rgba.w * ch->opacity_scale, 0.0f, 1.0f);
+  return rgba;
+}
+
+/* CorrectOpacity of render_params.h: 1 - (1 - a)^ratio, precise for tiny alphas. */
+float OctoCorrectOpacity(float a, float ratio) {
+  if (a <= 0.0f) return 0.0f;
+  if (a >= 1.0f) return 1.0f;
+  return -expm1(ratio * log1p(-a));
+}
+
+/* The position of a channel's sample: transform * p; false when it leaves the volume box. */
+bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRenderFrame f,
+                         float3* q) {
+  if (ch->identity) {
+    *q = p;
+    return true;
+  }
+  const __global float* m = ch->transform;
+  const float3 r = (float3)(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
+                            m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+                            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
+  /* Rounding may leave the box by a hair; anything further gives no sample. */
+  const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
+  const float tolerance = 1e-5f * fmax(box.x, fmax(box.y, box.z));
+  if (!(all(r >= -tolerance) && all(r <= box + tolerance))) return false;
+  *q = r;
+  return true;
+}
+
+/* DVR: channel value v (stored) of a sample mixed into the sample's premultiplied colour sum and
+ * transparency product (per-sample intermixing), its opacity corrected by `ratio` (segment length
+ * over the reference spacing). Returns the channel's uncorrected alpha. */
+float OctoMixChannel(__global const OctoChannelParams* ch, __global const float4* lut, float v,
+                     float ratio, float3* mix_rgb, float* transmit) {
+  const float4 rgba = OctoTransfer(ch, lut, OctoWindowed(ch, v));
+  const float a = OctoCorrectOpacity(rgba.w, ratio);
+  *mix_rgb += rgba.xyz * a;
+  *transmit *= 1.0f - a;
+  return rgba.w;
+}
+
+/* DVR: the sample's mixed channels (premultiplied colour sum, product of transparencies)
+ * composited under `acc`; colours never beyond the mixed opacity (render_params.h). */
+float4 OctoCompositeUnder(float4 acc, float3 mix_rgb, float transmit) {
+  const float mix_a = 1.0f - transmit;
+  acc.xyz += (1.0f - acc.w) * fmin(mix_rgb, (float3)(mix_a));
+  acc.w += (1.0f - acc.w) * mix_a;
+  return acc;
+}
+
+/* Adds n to the 64-bit sample counter held as two uint words (carry on wrap-around). */
+void OctoAddSamples(volatile __global uint* counters, uint n) {
+  if (n == 0u) return;
+  const uint old = atomic_add(&counters[OCTO_COUNTER_SAMPLES_LO], n);
+  if (old + n < old) atomic_inc(&counters[OCTO_COUNTER_SAMPLES_HI]);
+}
+
+/* The pixel of the current ray state (DVR: composited over the background; MIP/MinIP: the
+ * extrema's colours added onto it), clamped to [0, 1]. */
+float4 OctoFinishPixel(OctoRenderFrame f, __global const OctoChannelParams* channels,
+                       __global const float4* lut, float4 acc, const float* extreme) {
+  const float4 bg = (float4)(f.background[0], f.background[1], f.background[2], f.background[3]);
+  float4 out;
+#if OCTO_MODE == OCTO_MODE_DVR
+  (void)channels;
+  (void)lut;
+  (void)extreme;
+  out = acc + (1.0f - acc.w) * bg;
+#else
+  (void)acc;
+  out = bg;
+  bool any = false;
+  for (int k = 0; k < f.active_channels; ++k) {
+    const float e = extreme[k];
+    if (!(e >= 0.0f && e <= 65535.0f)) continue; /* Never sampled. */
+    any = true;
+    out.xyz += OctoTransfer(&channels[k], lut, OctoWindowed(&channels[k], e)).xyz;
+  }
+  if (any) out.w = 1.0f;
+#endif
+  return clamp(out, 0.0f, 1.0f);
+}
+
+#endif /* OCTOSCOPE_KERNELS_RAY_COMMON_CL_ */
