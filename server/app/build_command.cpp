@@ -153,9 +153,16 @@ int RunBuild(std::span<const std::string> args) {
     run.on_progress = [&](const octree::BuildProgress& p) {
       if (kill_after >= 0 && p.planes_done >= static_cast<uint64_t>(kill_after)) raise(SIGKILL);
     };
+    dataset::HistogramAccumulator histogram;  // For the display defaults (histogram.bin).
+    run.histogram = &histogram;
     Status built =
         BuildWithProgress(**source, (*cache)->mapping().value_maps, (*cache)->octree(), run);
     if (!built.ok()) return Fail(input, built);
+    if (Status s =
+            dataset::WriteHistogramFile(*cache_dir, histogram.Snapshot(), (*cache)->source());
+        !s.ok()) {
+      return Fail(*cache_dir, s);
+    }
     if (kill_after == static_cast<int64_t>(info.size[2]) * info.channel_count() + 1) raise(SIGKILL);
     if (Status s = (*cache)->Commit(); !s.ok()) return Fail(*cache_dir, s);
   }

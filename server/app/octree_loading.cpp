@@ -44,6 +44,13 @@ Status BuildWithProgress(io::VolumeSource& source, const std::vector<volume::Val
   build.staging_bytes = run.budget.staging_bytes;
   build.scratch_dir = run.scratch_dir;
   build.slab_planes = run.slab_planes;
+  if (run.histogram != nullptr) {
+    run.histogram->Reset(maps);
+    build.on_slab = [histogram = run.histogram](int channel, int64_t, int64_t,
+                                                std::span<const std::byte> stored) {
+      histogram->Add(channel, stored);
+    };
+  }
   build.progress = [&](const octree::BuildProgress& p) {
     if (bar) bar->Update(p.planes_done);
     if (run.on_progress) run.on_progress(p);
@@ -98,6 +105,8 @@ Result<std::unique_ptr<LoadedOctree>> OpenCacheDirectory(const fs::path& dir, ui
   loaded->cache_dir = dir;
   loaded->reused = true;
   loaded->cache = std::move(opened.cache);
+  auto histogram = dataset::ReadHistogramFile(dir, loaded->cache->source(), loaded->value_maps);
+  if (histogram.ok()) loaded->histogram = std::move(*histogram);
   return loaded;
 }
 
@@ -149,14 +158,23 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
     loaded->reused = loaded->cache->reused();
     loaded->source = loaded->reused ? "cache" : "built-cache";
     if (!loaded->reused) {
+      dataset::HistogramAccumulator histogram;
       BuildRun run;
       run.budget = budget;
       run.scratch_dir = options.cache_dir;
       run.threads = options.threads;
       run.progress_bar = options.progress;
+      run.histogram = &histogram;
       OCTO_RETURN_IF_ERROR(
           BuildWithProgress(*source, loaded->value_maps, loaded->cache->octree(), run));
+      loaded->histogram = histogram.Snapshot();
+      // Written before the commit: a committed cache always has its histogram.
+      OCTO_RETURN_IF_ERROR(
+          dataset::WriteHistogramFile(options.cache_dir, *loaded->histogram, identity));
       OCTO_RETURN_IF_ERROR(loaded->cache->Commit());
+    } else {
+      auto histogram = dataset::ReadHistogramFile(options.cache_dir, identity, loaded->value_maps);
+      if (histogram.ok()) loaded->histogram = std::move(*histogram);
     }
     return loaded;
   }
@@ -199,7 +217,10 @@ Result<std::unique_ptr<LoadedOctree>> LoadOctree(const fs::path& input,
   run.progress_bar = options.progress;
   std::error_code ec;
   run.scratch_dir = fs::temp_directory_path(ec);
+  dataset::HistogramAccumulator histogram;
+  run.histogram = &histogram;
   OCTO_RETURN_IF_ERROR(BuildWithProgress(*source, loaded->value_maps, *loaded->memory_tree, run));
+  loaded->histogram = histogram.Snapshot();
   return loaded;
 }
 

@@ -25,6 +25,7 @@
 #include <string>
 #include <vector>
 
+#include "dataset/histogram.h"
 #include "io/open_options.h"
 #include "io/volume_source.h"
 #include "octree/octree.h"
@@ -58,6 +59,9 @@ struct BuildRun {
   int64_t slab_planes = 0;            // Planes per read; 0 = from the budget.
   bool progress_bar = true;           // A progress bar on stderr.
   std::function<void(const octree::BuildProgress&)> on_progress;  // Also called, if set.
+  // Counts every voxel inserted (reset to the maps first), if set: the display defaults'
+  // auto-contrast, kept in the cache as histogram.bin.
+  dataset::HistogramAccumulator* histogram = nullptr;
 };
 
 // Streams the whole source into `tree` (octree::BuildOctree).
@@ -81,6 +85,9 @@ struct LoadedOctree {
   std::string source;  // "cache" (an existing complete cache), "built-cache", "memory".
   std::filesystem::path cache_dir;  // Empty for "memory".
   bool reused = false;              // No voxel was read: a complete cache served the request.
+  // Every voxel's value counted (by this build, or histogram.bin of the cache); nullopt when a
+  // reused cache holds none (built by an older version).
+  std::optional<dataset::Histogram> histogram;
 
   octree::Octree& octree() { return cache ? cache->octree() : *memory_tree; }
 

@@ -17,6 +17,7 @@
 #include "app/commands.h"
 #include "app/octree_loading.h"
 #include "app/volume_options.h"
+#include "dataset/display_defaults.h"
 #include "encode/image_encoder.h"
 #include "protocol/render_json.h"
 #include "protocol/render_report.h"
@@ -293,7 +294,13 @@ int RunRender(std::span<const std::string> args) {
   flags.AddValue("slice-planes", "AXIS[@UM],...",
                  "draw these slice planes into the 3-D view (x red, y green, z blue;\n"
                  "                            UM default: the centre)");
-  flags.AddValue("params", "PARAMS.json", "render parameters", "grey full-range channels");
+  flags.AddValue("params", "PARAMS.json", "render parameters", "as --defaults says");
+  flags.AddValue(
+      "defaults", "display|raw",
+      "without --params: 'display' = as the browser opens the scan (the file's colours\n"
+      "                            and windows, else distinct colours and auto-contrast from the\n"
+      "                            histogram of all voxels); 'raw' = grey full-range channels",
+      "display");
   flags.AddSwitch("stats-json", "print one JSON line of statistics on stdout");
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
   flags.AddValue("brick-buffer-mb", "N", "device brick buffer in MiB", "512");
@@ -308,6 +315,9 @@ int RunRender(std::span<const std::string> args) {
                  "a quarter of RAM, <= 4096");
   AddVolumeFlags(flags);
   if (Status s = flags.Parse(args); !s.ok()) return Usage(s.message(), flags);
+  if (auto d = flags.Get("defaults"); d && *d != "display" && *d != "raw") {
+    return Usage("--defaults must be display or raw", flags);
+  }
   if (flags.help_requested()) {
     std::printf("%s", flags.Help().c_str());
     return kExitOk;
@@ -412,8 +422,15 @@ int RunRender(std::span<const std::string> args) {
   // 4. Parameters and camera for this volume.
   const volume::DataType stored_type =
       tree.value_maps.empty() ? volume::StoredTypeFor(info.dtype) : tree.value_maps[0].stored_type;
-  render::RenderParams params = render::DefaultRenderParams(
-      info.channel_count(), stored_type, mode_flag.value_or(render::RenderMode::kDvr));
+  // Without --params the scan looks as it does when the browser opens it: the file's colours
+  // (else distinct defaults) and windows (else auto-contrast from the histogram of all voxels).
+  const bool display_defaults = !params_text && flags.Get("defaults").value_or("display") != "raw";
+  render::RenderParams params =
+      display_defaults ? dataset::DefaultDisplayParams(info, stored_type,
+                                                       tree.histogram ? &*tree.histogram : nullptr,
+                                                       mode_flag.value_or(render::RenderMode::kDvr))
+                       : render::DefaultRenderParams(info.channel_count(), stored_type,
+                                                     mode_flag.value_or(render::RenderMode::kDvr));
   if (params_text) {
     auto parsed = protocol::ParseRenderParamsJson(*params_text, params);
     if (!parsed.ok()) return Fail(*flags.Get("params"), parsed.status());

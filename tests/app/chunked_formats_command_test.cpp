@@ -128,7 +128,7 @@ TEST(ChunkedFormatsCommand, RenderImarisMipContract) {
   if (!device.ok()) GTEST_SKIP() << "no OpenCL device: " << device.status().ToString();
   const fs::path dir = testing::MakeTempDir("chunked-render");
   RunResult r = RunOctoscope("render " + Quote(kIms) + " --out " + Quote(dir / "mip.png") +
-                             " --size 256x256 --view z --mode mip --refine");
+                             " --size 256x256 --view z --mode mip --refine --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   std::ifstream f(dir / "mip.png", std::ios::binary);
   std::vector<uint8_t> png((std::istreambuf_iterator<char>(f)), {});

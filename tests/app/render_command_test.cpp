@@ -49,7 +49,7 @@ struct TestVolume {
 
 // Writes a random volume as an OME-TIFF (1 µm isotropic spacing) and returns its voxels.
 TestVolume WriteRandomOmeTiff(const fs::path& path, std::array<int64_t, 3> size, int channels,
-                              volume::DataType dtype, uint32_t seed) {
+                              volume::DataType dtype, uint32_t seed, uint32_t max_value = 0) {
   TestVolume v{size, dtype, {}};
   volume::VolumeInfo info;
   info.format = "memory";
@@ -60,7 +60,8 @@ TestVolume WriteRandomOmeTiff(const fs::path& path, std::array<int64_t, 3> size,
   auto memory = io::MemoryVolume::Create(info);
   EXPECT_TRUE(memory.ok());
   std::mt19937 rng(seed);
-  const uint32_t max = dtype == volume::DataType::kUint8 ? 255 : 65535;
+  const uint32_t max =
+      max_value != 0 ? max_value : (dtype == volume::DataType::kUint8 ? 255 : 65535);
   for (int c = 0; c < channels; ++c) {
     std::vector<uint16_t> values;
     for (int64_t z = 0; z < size[2]; ++z) {
@@ -168,7 +169,8 @@ TestVolume* RenderCommandTest::uint8_ = nullptr;
 TestVolume* RenderCommandTest::single_ = nullptr;
 TestVolume* RenderCommandTest::slice_ = nullptr;
 
-const char* kContractFlags = "--projection ortho --view z --mode mip --refine";
+// The contracts are stated for grey full-range channels (--defaults raw).
+const char* kContractFlags = "--projection ortho --view z --mode mip --refine --defaults raw";
 
 TEST_F(RenderCommandTest, MipContractOneChannelOfTwo) {
   const std::string params =
@@ -405,7 +407,8 @@ TEST_F(RenderCommandTest, SliceZAtAVoxelCentrePlaneShowsTheVoxels) {
   // centres, so the plane z = 7.5 (voxel centres of z index 7) shows the voxels themselves.
   const TestVolume& v = *slice_;
   const fs::path out = *dir_ / "slice-z.png";
-  RunResult r = Render(*dir_ / "slice.ome.tif", out, "--slice z@7.5 --size 72x40 --stats-json");
+  RunResult r = Render(*dir_ / "slice.ome.tif", out,
+                       "--slice z@7.5 --size 72x40 --stats-json --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(ExpectGreySlice(DecodeTestPng(testing::ReadAll(out)), 72, 40,
                             [&](int x, int y) { return v.At(0, x, y, 7) / 65535.0; }),
@@ -432,7 +435,7 @@ TEST_F(RenderCommandTest, SliceZAtAVoxelCentrePlaneShowsTheVoxels) {
   // Without a position: the centre plane z = 10, halfway between the voxel centres of z indices
   // 9 and 10, so each pixel is their mean.
   const fs::path centre = *dir_ / "slice-z-centre.png";
-  r = Render(*dir_ / "slice.ome.tif", centre, "--slice z --size 72x40 --stats-json");
+  r = Render(*dir_ / "slice.ome.tif", centre, "--slice z --size 72x40 --stats-json --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_DOUBLE_EQ(nlohmann::json::parse(r.out)["slice_position_um"].get<double>(), 10.0);
   EXPECT_EQ(ExpectGreySlice(DecodeTestPng(testing::ReadAll(centre)), 72, 40,
@@ -446,14 +449,15 @@ TEST_F(RenderCommandTest, SliceYAndXOrientationOnANonCubeVolume) {
   const TestVolume& v = *slice_;
   // y slice: image x = +x, rows = +z; at the volume's x × z size one pixel per voxel.
   const fs::path y_out = *dir_ / "slice-y.png";
-  RunResult r = Render(*dir_ / "slice.ome.tif", y_out, "--slice y@11.5 --size 72x20 --refine");
+  RunResult r =
+      Render(*dir_ / "slice.ome.tif", y_out, "--slice y@11.5 --size 72x20 --refine --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(ExpectGreySlice(DecodeTestPng(testing::ReadAll(y_out)), 72, 20,
                             [&](int x, int row) { return v.At(0, x, 11, row) / 65535.0; }),
             0);
   // x slice: image x = +y, rows = +z; at the volume's y × z size.
   const fs::path x_out = *dir_ / "slice-x.png";
-  r = Render(*dir_ / "slice.ome.tif", x_out, "--slice x@30.5 --size 40x20");
+  r = Render(*dir_ / "slice.ome.tif", x_out, "--slice x@30.5 --size 40x20 --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_EQ(ExpectGreySlice(DecodeTestPng(testing::ReadAll(x_out)), 40, 20,
                             [&](int col, int row) { return v.At(0, 30, col, row) / 65535.0; }),
@@ -497,7 +501,7 @@ TEST_F(RenderCommandTest, SliceUsesTheParameterFilesColourAndWindowAndZoom) {
   // pixel centres (2 px + 1, 2 py + 1) lie between four voxel centres: their mean.
   const fs::path zoomed = *dir_ / "slice-zoom.png";
   r = Render(*dir_ / "slice.ome.tif", zoomed,
-             "--slice z@7.5 --slice-zoom 2 --lod-bias -1 --size 36x20 --stats-json");
+             "--slice z@7.5 --slice-zoom 2 --lod-bias -1 --size 36x20 --stats-json --defaults raw");
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_DOUBLE_EQ(j["um_per_pixel"].get<double>(), 2.0);
@@ -629,6 +633,41 @@ TEST_F(RenderCommandTest, BadSliceFlagsAre64) {
   EXPECT_NE(r.err.find("--slice-planes"), std::string::npos) << r.err;
   EXPECT_NE(r.err.find("'w'"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(*dir_ / "bad-slice.png"));
+}
+
+TEST_F(RenderCommandTest, WithoutParamsDimDataOpensColouredAndContrasted) {
+  // Two dim channels (values up to 300 of 65535, like a 12-bit camera's weak signal): in the
+  // stored type's full range they are black; the display defaults (what the browser opens with)
+  // stretch each channel over its own 0.1-99.9 % percentiles and colour them green and magenta.
+  WriteRandomOmeTiff(*dir_ / "dim.ome.tif", {40, 24, 16}, 2, volume::DataType::kUint16, 11, 300);
+  const fs::path cache = *dir_ / "dim-cache";
+  const std::string flags = "--projection ortho --view z --mode mip --refine --size 40x24";
+  RunResult raw =
+      RunOctoscope("render " + Quote(*dir_ / "dim.ome.tif") + " --cache " + Quote(cache) +
+                   " --out " + Quote(*dir_ / "dim-raw.png") + " " + flags + " --defaults raw");
+  ASSERT_EQ(raw.exit_code, 0) << raw.err;
+  EXPECT_TRUE(fs::exists(cache / "histogram.bin"));           // The build counted every voxel.
+  RunResult shown = Render(cache, *dir_ / "dim.png", flags);  // Reuses the cache.
+  ASSERT_EQ(shown.exit_code, 0) << shown.err;
+  const DecodedPng dark = DecodeTestPng(testing::ReadAll(*dir_ / "dim-raw.png"));
+  const DecodedPng png = DecodeTestPng(testing::ReadAll(*dir_ / "dim.png"));
+  ASSERT_TRUE(dark.ok && png.ok);
+  int dark_max = 0, max = 0, greenish = 0, magentaish = 0;
+  for (int y = 0; y < png.height; ++y) {
+    for (int x = 0; x < png.width; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        dark_max = std::max(dark_max, dark.At(x, y, c));
+        max = std::max(max, png.At(x, y, c));
+      }
+      greenish += png.At(x, y, 1) > png.At(x, y, 0) + 40;
+      magentaish +=
+          png.At(x, y, 0) > png.At(x, y, 1) + 40 && png.At(x, y, 2) > png.At(x, y, 1) + 40;
+    }
+  }
+  EXPECT_LE(dark_max, 2);
+  EXPECT_GE(max, 200);
+  EXPECT_GT(greenish, 0);
+  EXPECT_GT(magentaish, 0);
 }
 
 }  // namespace
