@@ -16,6 +16,7 @@ protocol::DatasetDescription Describe(const Dataset& dataset) {
   d.missing_planes = status.missing_planes;
   d.cache = status.cache_dir.string();
   d.error = status.error;
+  d.value_maps = dataset.value_maps();
   return d;
 }
 

@@ -45,6 +45,19 @@ json DescriptionObject(const DatasetDescription& d) {
   j["cache"] = d.cache;
   j["error"] = d.error.empty() ? json(nullptr) : json(d.error);
   j["warnings"] = info.warnings;
+  // File value = offset + scale * stored value (the windows of render parameters are in stored
+  // units); null until the dataset's octree is opened.
+  if (d.value_maps.empty()) {
+    j["value_maps"] = nullptr;
+  } else {
+    json maps = json::array();
+    for (const volume::ValueMap& m : d.value_maps) {
+      maps.push_back({{"offset", m.offset},
+                      {"scale", m.scale},
+                      {"stored_max", m.stored_type == volume::DataType::kUint8 ? 255 : 65535}});
+    }
+    j["value_maps"] = std::move(maps);
+  }
   return j;
 }
 

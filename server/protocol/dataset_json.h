@@ -21,6 +21,7 @@
 
 #include "util/result.h"
 #include "volume/data_type.h"
+#include "volume/value_map.h"
 #include "volume/volume_info.h"
 
 namespace octoscope::protocol {
@@ -35,16 +36,18 @@ struct DatasetDescription {
   uint64_t planes_total = 0;     // z planes x channels.
   uint64_t planes_received = 0;  // Streams: distinct planes received; else = planes_inserted.
   uint64_t planes_inserted = 0;  // Visible in the octree.
-  std::optional<uint64_t> missing_planes;  // Finished streams: planes that never arrived.
-  std::string cache;                       // The cache directory.
-  std::string error;                       // "" when none.
+  std::optional<uint64_t> missing_planes;    // Finished streams: planes that never arrived.
+  std::string cache;                         // The cache directory.
+  std::string error;                         // "" when none.
+  std::vector<volume::ValueMap> value_maps;  // Per channel; empty until known.
 };
 
 // One object: {"id", "name", "format", "size", "channels", "channel_names", "channel_colors"
 // ([r,g,b] in 0..1, null when the file gives none), "dtype", "spacing", "state", "progress"
 // (planes_inserted / planes_total), "planes_total", "planes_received", "planes_inserted",
 // "missing_planes" (null unless a finished stream), "cache", "error" (null when none),
-// "warnings"}.
+// "warnings", "value_maps" ([{"offset", "scale", "stored_max"}] per channel: file value =
+// offset + scale * stored value, stored values 0..stored_max; null until known)}.
 std::string DatasetJson(const DatasetDescription& dataset);
 // A JSON array of DatasetJson objects.
 std::string DatasetListJson(std::span<const DatasetDescription> datasets);

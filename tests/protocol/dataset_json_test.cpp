@@ -50,6 +50,19 @@ TEST(DatasetJsonTest, DescribesADatasetAsTheApiSays) {
   EXPECT_EQ(j["cache"], "/cache/a3f09c21d4e1");
   EXPECT_TRUE(j["error"].is_null());
   EXPECT_EQ(j["warnings"], json::array({"a warning"}));
+  EXPECT_TRUE(j["value_maps"].is_null());  // Not known before the octree is opened.
+  volume::ValueMap floats;
+  floats.file_type = volume::DataType::kFloat32;
+  floats.offset = -1.5;
+  floats.scale = 0.25;
+  d.value_maps = {volume::ValueMap{}, floats};
+  const json mapped = json::parse(DatasetJson(d));
+  ASSERT_EQ(mapped["value_maps"].size(), 2u);
+  EXPECT_EQ(mapped["value_maps"][0]["offset"], 0);
+  EXPECT_EQ(mapped["value_maps"][0]["scale"], 1);
+  EXPECT_EQ(mapped["value_maps"][1]["offset"], -1.5);
+  EXPECT_EQ(mapped["value_maps"][1]["scale"], 0.25);
+  EXPECT_EQ(mapped["value_maps"][1]["stored_max"], 65535);
 
   d.state = "error";
   d.error = "bad \xff bytes";  // Invalid UTF-8 from a file name must not break the document.
