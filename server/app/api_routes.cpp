@@ -139,7 +139,6 @@ net::BodyMode ApiRoutes::BodyModeFor(const net::HttpRequest& head) {
 }
 
 void ApiRoutes::Respond(const net::HttpResponder& responder, HttpResponse response) {
-  if (metrics_ != nullptr) metrics_->HttpResponse(response.status);
   responder.Respond(std::move(response));
 }
 

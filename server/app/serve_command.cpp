@@ -158,6 +158,7 @@ int RunServe(std::span<const std::string> args) {
   auto server =
       net::Server::Start(server_options, routes, MakeSessionFactory(&session_context), logger);
   if (!server.ok()) return Fail("listen", server.status());
+  metrics.SetHttpCounts([server = server->get()] { return server->responses_by_status(); });
 
   std::printf("%s\n", ServeUrl(*settings, (*server)->port(), open_dataset).c_str());
   std::fflush(stdout);
@@ -170,6 +171,7 @@ int RunServe(std::span<const std::string> args) {
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
   // In order: no new connections and sessions closed; no new data; datasets flushed.
   (*server)->Shutdown();
+  metrics.SetHttpCounts(nullptr);
   watchers.clear();
   demo.reset();
   uploads.reset();  // Slab inserts in flight finish.

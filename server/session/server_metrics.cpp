@@ -64,9 +64,9 @@ void ServerMetrics::Encoded(protocol::ImageFormat format, double ms) {
   encode_ms_[static_cast<size_t>(format)].Observe(ms);
 }
 
-void ServerMetrics::HttpResponse(int code) {
+void ServerMetrics::SetHttpCounts(HttpCounts counts) {
   std::lock_guard<std::mutex> lock(mu_);
-  ++http_codes_[code];
+  http_counts_ = std::move(counts);
 }
 
 uint64_t ServerMetrics::frames_sent(protocol::FrameTier tier) const {
@@ -137,7 +137,7 @@ std::string ServerMetrics::PrometheusText() const {
   encode_ms_[1].Append(&out, "octoscope_encode_ms", "format=\"png\"");
   AppendMetricHeader(&out, "octoscope_http_requests_total", "counter",
                      "HTTP responses, by status code.");
-  for (const auto& [code, n] : http_codes_) {
+  for (const auto& [code, n] : http_counts_ ? http_counts_() : HttpCounts::result_type{}) {
     out += "octoscope_http_requests_total{code=\"" + std::to_string(code) + "\"} " +
            std::to_string(n) + "\n";
   }

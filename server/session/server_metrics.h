@@ -11,10 +11,13 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include "protocol/frame_header.h"
 
@@ -47,7 +50,10 @@ class ServerMetrics {
   void FramesDropped(uint64_t n) { frames_dropped_.fetch_add(n); }
   void Rendered(protocol::FrameTier tier, double ms, uint64_t bricks_uploaded);
   void Encoded(protocol::ImageFormat format, double ms);
-  void HttpResponse(int code);
+  // Where the HTTP response counts come from (the net layer counts every response, static files
+  // and refusals included); set once the server runs, cleared before it goes.
+  using HttpCounts = std::function<std::vector<std::pair<int, uint64_t>>()>;
+  void SetHttpCounts(HttpCounts counts);
 
   uint64_t frames_sent(protocol::FrameTier tier) const;
   // Frames sent over the last 5 s, per second.
@@ -63,9 +69,9 @@ class ServerMetrics {
   std::atomic<uint64_t> bytes_sent_{0};
   std::atomic<uint64_t> bricks_uploaded_{0};
   mutable std::mutex mu_;
-  std::array<MsHistogram, 4> render_ms_;  // By tier.
-  std::array<MsHistogram, 2> encode_ms_;  // By format.
-  std::map<int, uint64_t> http_codes_;
+  std::array<MsHistogram, 4> render_ms_;                 // By tier.
+  std::array<MsHistogram, 2> encode_ms_;                 // By format.
+  HttpCounts http_counts_;                               // Guarded by mu_.
   mutable std::deque<Clock::time_point> recent_frames_;  // Sends within the last 5 s.
 };
 

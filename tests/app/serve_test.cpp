@@ -257,6 +257,9 @@ TEST_F(ServeTest, HealthIsOpenEverythingElseNeedsTheToken) {
   auto metrics = Fetch(server_.port(), http::verb::get, Auth("/metrics"));
   EXPECT_EQ(metrics.status, 200);
   EXPECT_NE(metrics.body.find("octoscope_sessions"), std::string::npos);
+  // Every response is counted, the refused ones too.
+  EXPECT_NE(metrics.body.find("octoscope_http_requests_total{code=\"401\"} 2"), std::string::npos)
+      << metrics.body;
   WsClient ws;
   EXPECT_NE(ws.Connect(server_.port(), "/ws"), "");
   EXPECT_EQ(ws.handshake_status(), 401);
