@@ -154,17 +154,33 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
     if (method != "GET") return method_not_allowed("GET");
     return Health(responder);
   }
+  const net::Principal& principal = request.principal;
+  auto forbidden = [&](std::string_view what) {
+    Respond(responder, HttpResponse::Error(403, what));
+  };
   if (path == "/metrics") {
     if (method != "GET") return method_not_allowed("GET");
+    if (options_.access != nullptr && !AccessControl::MayReadMetrics(principal)) {
+      return forbidden("the metrics are for admins");
+    }
     return Metrics(responder);
   }
   if (path == "/api/datasets") {
     if (method == "GET") {
       std::vector<protocol::DatasetDescription> list;
-      for (const auto& dataset : registry_->List()) list.push_back(dataset::Describe(*dataset));
+      for (const auto& dataset : registry_->List()) {
+        if (options_.access == nullptr || options_.access->MayView(principal, *dataset)) {
+          list.push_back(dataset::Describe(*dataset));
+        }
+      }
       return Respond(responder, HttpResponse::Json(200, protocol::DatasetListJson(list)));
     }
-    if (method == "POST") return CreateStream(request, responder);
+    if (method == "POST") {
+      if (options_.access != nullptr && !AccessControl::MayCreateStreams(principal)) {
+        return forbidden("only users create streams");
+      }
+      return CreateStream(request, responder);
+    }
     return method_not_allowed("GET, POST");
   }
   std::string id, rest;
@@ -177,9 +193,9 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
   }
   if (rest == "/finish") {
     if (method != "POST") return method_not_allowed("POST");
-    return Finish(id, responder);
+    return Finish(request, id, responder);
   }
-  std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
+  std::shared_ptr<dataset::Dataset> dataset = FindVisible(principal, id);
   if (dataset == nullptr || (!rest.empty() && rest != "/histogram")) {
     return Respond(
         responder,
@@ -192,6 +208,13 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
   }
   Respond(responder,
           HttpResponse::Json(200, protocol::HistogramJson(dataset::DescribeHistogram(*dataset))));
+}
+
+std::shared_ptr<dataset::Dataset> ApiRoutes::FindVisible(const net::Principal& principal,
+                                                         const std::string& id) const {
+  std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
+  if (dataset == nullptr || options_.access == nullptr) return dataset;
+  return options_.access->MayView(principal, *dataset) ? dataset : nullptr;
 }
 
 void ApiRoutes::Health(const net::HttpResponder& responder) {
@@ -220,6 +243,28 @@ void ApiRoutes::Metrics(const net::HttpResponder& responder) {
     text += "octoscope_dataset_planes_total{dataset=\"" + session::EscapeLabelValue(dataset->id()) +
             "\"} " + std::to_string(dataset->status().planes_total) + "\n";
   }
+  session::AppendMetricHeader(&text, "octoscope_dataset_open", "gauge",
+                              "1 while the dataset's octree and page cache are in memory.");
+  for (const auto& dataset : datasets) {
+    text += "octoscope_dataset_open{dataset=\"" + session::EscapeLabelValue(dataset->id()) +
+            "\"} " + (dataset->status().open ? "1" : "0") + "\n";
+  }
+  session::AppendMetricHeader(&text, "octoscope_dataset_ram_budget_bytes", "gauge",
+                              "The dataset's share of the RAM budget (open datasets).");
+  for (const auto& dataset : datasets) {
+    if (!dataset->status().open) continue;
+    text += "octoscope_dataset_ram_budget_bytes{dataset=\"" +
+            session::EscapeLabelValue(dataset->id()) + "\"} " +
+            std::to_string(dataset->ram_budget()) + "\n";
+  }
+  session::AppendMetricHeader(&text, "octoscope_ram_budget_bytes", "gauge",
+                              "The RAM budget divided among the open datasets (--ram-mb).");
+  text += "octoscope_ram_budget_bytes " + std::to_string(registry_->ram_bytes()) + "\n";
+  if (hub_ != nullptr) {
+    session::AppendMetricHeader(&text, "octoscope_dataset_releases_total", "counter",
+                                "Datasets closed after idle-timeout-s without a session.");
+    text += "octoscope_dataset_releases_total " + std::to_string(hub_->releases()) + "\n";
+  }
   HttpResponse response;
   response.status = 200;
   response.content_type = "text/plain; version=0.0.4; charset=utf-8";
@@ -232,9 +277,10 @@ void ApiRoutes::CreateStream(const net::HttpRequest& request, const net::HttpRes
       protocol::ParseStreamRequest(request.body, protocol::StreamRequestKind::kApi, "request body");
   if (!parsed.ok()) return Respond(responder, ErrorResponse(parsed.status()));
   // Creating the cache directory touches the disk: an upload worker does it.
-  RunUpload(responder, [this, responder, spec = std::move(*parsed)] {
+  RunUpload(responder, [this, responder, spec = std::move(*parsed), user = request.principal.user] {
     auto created = registry_->CreateStream(spec);
     if (!created.ok()) return Respond(responder, ErrorResponse(created.status()));
+    if (options_.creators != nullptr) options_.creators->RecordCreator((*created)->id(), user);
     Respond(responder, HttpResponse::Json(201, protocol::CreatedJson((*created)->id())));
   });
 }
@@ -244,9 +290,12 @@ void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
   auto query = protocol::ParseSlabQuery(request.query);
   if (!query.ok()) return Respond(responder, ErrorResponse(query.status()));
   auto upload = std::make_shared<SlabUpload>();
-  upload->dataset = registry_->Find(id);
+  upload->dataset = FindVisible(request.principal, id);
   if (upload->dataset == nullptr) {
     return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
+  }
+  if (options_.access != nullptr && !AccessControl::MayCreateStreams(request.principal)) {
+    return Respond(responder, HttpResponse::Error(403, "only users send planes"));
   }
   if (!upload->dataset->is_stream()) {
     return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));
@@ -278,10 +327,14 @@ void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
   std::make_shared<SlabReader>(this, std::move(upload), request.body_reader, responder)->Next();
 }
 
-void ApiRoutes::Finish(const std::string& id, const net::HttpResponder& responder) {
-  std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
+void ApiRoutes::Finish(const net::HttpRequest& request, const std::string& id,
+                       const net::HttpResponder& responder) {
+  std::shared_ptr<dataset::Dataset> dataset = FindVisible(request.principal, id);
   if (dataset == nullptr) {
     return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
+  }
+  if (options_.access != nullptr && !AccessControl::MayCreateStreams(request.principal)) {
+    return Respond(responder, HttpResponse::Error(403, "only users finish streams"));
   }
   if (!dataset->is_stream()) {
     return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));

@@ -1,5 +1,8 @@
 // ApiRoutes: the REST API of `octoscope serve` (docs/api.md) on top of the dataset registry —
 // health, metrics, the dataset list, histograms, and streaming ingest (create, slabs, finish).
+// Every dataset-scoped route answers only for datasets the request's principal may see
+// (AccessControl; others are 404 like unknown ids); /metrics is for admins, creating and
+// feeding streams for users.
 // The net layer hands requests over on I/O threads; everything that touches disk or the octree
 // (slab inserts, finishing a stream) runs on the upload workers, and slab bodies are pulled from
 // the connection piece by piece into one buffer of exactly the expected size.
@@ -14,6 +17,7 @@
 #include <memory>
 #include <string>
 
+#include "app/access_control.h"
 #include "dataset/dataset_registry.h"
 #include "net/api_handler.h"
 #include "session/dataset_hub.h"
@@ -24,6 +28,11 @@ namespace octoscope::app {
 
 struct ApiRoutesOptions {
   std::string version;
+  // Who sees what (REQUIRED in `serve`; null admits every principal to everything, for tests of
+  // other routes).
+  const AccessControl* access = nullptr;
+  // Records stream creators (the same object as `access`, mutable).
+  AccessControl* creators = nullptr;
   int max_concurrent_uploads = 8;  // More at once: 429.
 };
 
@@ -42,10 +51,14 @@ class ApiRoutes : public net::ApiHandler {
 
   void Health(const net::HttpResponder& responder);
   void Metrics(const net::HttpResponder& responder);
+  // The dataset `id` when `principal` may see it, else null (as for an unknown id).
+  std::shared_ptr<dataset::Dataset> FindVisible(const net::Principal& principal,
+                                                const std::string& id) const;
   void CreateStream(const net::HttpRequest& request, const net::HttpResponder& responder);
   void PutSlab(const net::HttpRequest& request, const std::string& id,
                const net::HttpResponder& responder);
-  void Finish(const std::string& id, const net::HttpResponder& responder);
+  void Finish(const net::HttpRequest& request, const std::string& id,
+              const net::HttpResponder& responder);
   // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
   bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
   void Respond(const net::HttpResponder& responder, net::HttpResponse response);

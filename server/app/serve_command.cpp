@@ -1,8 +1,8 @@
 // octoscope serve: the viewer server (docs/server.md). The composition root of the server: it
 // reads the flags (and --config), builds the render service, the dataset registry (with the demo
 // stream and watched folders), the shared session services and the HTTP/WebSocket server, prints
-// the URL to open, and on SIGINT/SIGTERM shuts them down in order: no new connections, sessions
-// closed, streams finished and pages flushed, threads joined.
+// the URL to open, re-reads the users file on SIGHUP, and on SIGINT/SIGTERM shuts them down in
+// order: no new connections, sessions closed, streams finished and pages flushed, threads joined.
 #include <signal.h>
 
 #include <cstdio>
@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "app/access_control.h"
 #include "app/api_routes.h"
 #include "app/commands.h"
 #include "app/flags.h"
@@ -46,15 +47,22 @@ int Fail(const char* what, const Status& status) {
   return kExitBadInput;
 }
 
-// Blocks SIGINT and SIGTERM in this thread and every thread it starts afterwards, so that
+// Blocks SIGINT, SIGTERM and SIGHUP in this thread and every thread it starts afterwards, so that
 // WaitForStopSignal receives them (no handler runs on a random thread).
 sigset_t BlockStopSignals() {
   sigset_t set;
   sigemptyset(&set);
   sigaddset(&set, SIGINT);
   sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &set, nullptr);
   return set;
+}
+
+// The users `access` admits: the settings' users plus the admin token's user "admin".
+std::vector<User> UsersWithAdmin(std::vector<User> users, const std::string& token) {
+  if (!token.empty()) users.push_back(User{"admin", token, {}, true, std::nullopt});
+  return users;
 }
 
 int WaitForStopSignal(const sigset_t& set) {
@@ -129,11 +137,16 @@ int RunServe(std::span<const std::string> args) {
 
   // Session services.
   session::ServerMetrics metrics;
+  session::HubOptions hub_options;
+  hub_options.idle_timeout = settings->limits.idle_timeout;
+  hub_options.on_release = [registry = registry->get()] { registry->Rebalance(); };
   auto hub = std::make_unique<session::DatasetHub>(
-      renderer->get(), [registry = registry->get()](std::string_view id) {
+      renderer->get(),
+      [registry = registry->get()](std::string_view id) {
         auto opened = registry->Open(id);
         return opened.ok() ? *opened : nullptr;
-      });
+      },
+      hub_options);
   LatestWinsExecutor encoders(settings->encoder_threads);
   encode::JpegEncoderPool jpeg_encoders;
   auto uploads = std::make_unique<LatestWinsExecutor>(2);
@@ -146,18 +159,37 @@ int RunServe(std::span<const std::string> args) {
   session_context.timers = &timers;
   session_context.metrics = &metrics;
   session_context.server_version = kVersion;
+  session_context.max_sessions = settings->limits.max_sessions;
+  session_context.max_participants = settings->limits.max_participants;
+  session_context.idle_timeout = settings->limits.idle_timeout;
+  // (With --port 0 and no --public-url this names port 0: give --public-url for links then.)
+  session_context.public_url = PublicBaseUrl(*settings, settings->port);
+  session_context.state_dir = settings->state_dir;
+
+  // Who may do what: the users (and the admin token); share and view links plug in here.
+  auto access = std::make_shared<AccessControl>(UsersWithAdmin(settings->users, settings->token));
+  auto may_open = [access, registry = registry->get()](const net::Principal& principal,
+                                                       std::string_view id) {
+    std::shared_ptr<dataset::Dataset> dataset = registry->Find(id);
+    return dataset == nullptr || access->MayView(principal, *dataset);
+  };
 
   net::ServerOptions server_options;
   server_options.bind_address = settings->bind;
   server_options.port = settings->port;
   server_options.io_threads = settings->io_threads;
-  server_options.authenticator = std::make_shared<net::TokenAuthenticator>(settings->token);
+  server_options.authenticator = access;
+  server_options.trusted_proxies = settings->trusted_proxies;
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
+  ApiRoutesOptions routes_options;
+  routes_options.version = kVersion;
+  routes_options.access = access.get();
+  routes_options.creators = access.get();
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
-                                            ApiRoutesOptions{kVersion});
-  auto server =
-      net::Server::Start(server_options, routes, MakeSessionFactory(&session_context), logger);
+                                            routes_options);
+  auto server = net::Server::Start(server_options, routes,
+                                   MakeSessionFactory(&session_context, {}, may_open), logger);
   if (!server.ok()) return Fail("listen", server.status());
   metrics.SetHttpCounts([server = server->get()] { return server->responses_by_status(); });
 
@@ -167,7 +199,24 @@ int RunServe(std::span<const std::string> args) {
                                   " dataset(s) on " + (*registry)->cache_root().string() +
                                   "; device " + (*renderer)->device().name);
 
-  const int signal = WaitForStopSignal(stop_signals);
+  int signal = 0;
+  while ((signal = WaitForStopSignal(stop_signals)) == SIGHUP) {
+    // Users from a file are re-read; a bad file keeps the users in force.
+    if (settings->users_file.empty()) {
+      logger.Log(LogLevel::kInfo, "SIGHUP: no users file to re-read");
+      continue;
+    }
+    auto users = LoadUsersFile(settings->users_file);
+    if (!users.ok()) {
+      logger.Log(LogLevel::kError,
+                 "SIGHUP: keeping the users in force: " + users.status().message());
+      continue;
+    }
+    const size_t n = users->size();
+    access->ReplaceUsers(UsersWithAdmin(std::move(*users), settings->token));
+    logger.Log(LogLevel::kInfo,
+               "SIGHUP: " + std::to_string(n) + " user(s) from " + settings->users_file.string());
+  }
   logger.Log(LogLevel::kInfo,
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
   // In order: no new connections and sessions closed; no new data; datasets flushed.

@@ -6,6 +6,8 @@
 #include <fstream>
 #include <sstream>
 
+#include "app/access_control.h"
+#include "net/trusted_proxies.h"
 #include "protocol/serve_config.h"
 #include "util/random_token.h"
 
@@ -17,34 +19,6 @@ namespace octoscope::app {
 namespace {
 
 namespace fs = std::filesystem;
-
-// The token must not be guessable and fit in a URL and a header.
-constexpr size_t kMinTokenChars = 16;
-constexpr size_t kMaxTokenChars = 256;
-
-Result<std::string> ReadTokenFile(const fs::path& path) {
-  std::ifstream in(path);
-  if (!in) return NotFoundError(path.string() + ": cannot read the token file");
-  std::string line;
-  std::getline(in, line);
-  while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) {
-    line.pop_back();
-  }
-  return line;
-}
-
-Status CheckToken(const std::string& token) {
-  if (token.size() < kMinTokenChars || token.size() > kMaxTokenChars) {
-    return InvalidArgumentError("the token must be " + std::to_string(kMinTokenChars) + " to " +
-                                std::to_string(kMaxTokenChars) + " characters");
-  }
-  for (char c : token) {
-    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-                    c == '-' || c == '_' || c == '.' || c == '~';
-    if (!ok) return InvalidArgumentError("the token may hold only A-Z a-z 0-9 - _ . ~");
-  }
-  return Status::Ok();
-}
 
 fs::path DefaultCacheDir() {
   if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg != nullptr && *xdg == '/') {
@@ -71,6 +45,36 @@ fs::path DefaultWebRoot() {
     if (fs::is_regular_file(c / "index.html", ec)) return c;
   }
   return {};
+}
+
+fs::path DefaultStateDir() {
+  if (const char* xdg = std::getenv("XDG_STATE_HOME"); xdg != nullptr && *xdg == '/') {
+    return fs::path(xdg) / "octoscope";
+  }
+  if (const char* home = std::getenv("HOME"); home != nullptr && *home == '/') {
+    return fs::path(home) / ".local" / "state" / "octoscope";
+  }
+  return fs::current_path() / "octoscope-state";
+}
+
+// http(s)://HOST[:PORT][/PATH]: the base of the URLs the server prints and puts in links; a
+// trailing slash is added.
+Result<std::string> CheckPublicUrl(std::string url) {
+  const bool http = url.starts_with("http://"), https = url.starts_with("https://");
+  const size_t host_at = https ? 8 : 7;
+  if ((!http && !https) || url.size() <= host_at || url[host_at] == '/') {
+    return InvalidArgumentError("--public-url: expected http(s)://HOST[:PORT][/PATH/], got '" +
+                                url + "'");
+  }
+  for (char c : url) {
+    if (static_cast<unsigned char>(c) <= ' ' || c == '?' || c == '#' || c == '"' || c == '<' ||
+        c == '>' || c == '\\' || static_cast<unsigned char>(c) >= 0x7f) {
+      return InvalidArgumentError(
+          "--public-url: no spaces, quotes, '?' or '#' (query and fragment are the server's)");
+    }
+  }
+  if (!url.ends_with('/')) url += '/';
+  return url;
 }
 
 uint64_t DefaultRamMb() {
@@ -105,6 +109,20 @@ void AddServeFlags(Flags& flags) {
   flags.AddValue("web", "DIR", "the web client's files", "web/ beside the binary");
   flags.AddValue("io-threads", "N", "network I/O threads", "2");
   flags.AddValue("max-upload-mb", "N", "largest slab upload", "1024");
+  flags.AddValue("public-url", "URL",
+                 "base of the URLs printed and put in share/view links (behind a proxy)",
+                 "http://BIND:PORT/");
+  flags.AddValue("trusted-proxy", "ADDR",
+                 "believe X-Forwarded-For/-Proto from this address or CIDR network (repeatable)");
+  flags.AddValue("users", "JSON", "the users as a JSON array (as the config's \"users\")");
+  flags.AddValue("users-file", "F", "read the users from the JSON file F (again on SIGHUP)");
+  flags.AddValue("state-dir", "DIR", "durable server state (view links); back it up",
+                 "$XDG_STATE_HOME/octoscope");
+  flags.AddValue("max-sessions", "N", "viewing sessions at once", "64");
+  flags.AddValue("max-participants", "N", "participants of one session", "16");
+  flags.AddValue("idle-timeout-s", "S",
+                 "release sessions nobody is connected to and datasets nobody views after S s",
+                 "900");
 }
 
 Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
@@ -193,7 +211,47 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
   if (!upload.ok()) return upload.status();
   s.max_upload_mb = static_cast<uint64_t>(*upload);
 
-  // The token: given, from a file, or generated (as Jupyter does).
+  if (auto v = text("public-url", config.public_url)) {
+    OCTO_ASSIGN_OR_RETURN(s.public_url, CheckPublicUrl(*v));
+  }
+  s.trusted_proxies =
+      flags.Has("trusted-proxy") ? flags.GetAll("trusted-proxy") : config.trusted_proxy;
+  if (auto proxies = net::TrustedProxies::Parse(s.trusted_proxies); !proxies.ok()) {
+    return InvalidArgumentError("--" + proxies.status().message());
+  }
+  s.state_dir = text("state-dir", config.state_dir).value_or(DefaultStateDir().string());
+  OCTO_ASSIGN_OR_RETURN(const int64_t max_sessions,
+                        integer("max-sessions", config.max_sessions, 64, 1, 100000));
+  s.limits.max_sessions = static_cast<int>(max_sessions);
+  OCTO_ASSIGN_OR_RETURN(const int64_t max_participants,
+                        integer("max-participants", config.max_participants, 16, 1, 1000));
+  s.limits.max_participants = static_cast<int>(max_participants);
+  OCTO_ASSIGN_OR_RETURN(const int64_t idle,
+                        integer("idle-timeout-s", config.idle_timeout_s, 900, 1, 30 * 86400));
+  s.limits.idle_timeout = std::chrono::seconds(idle);
+
+  // Users: from --users, --users-file or the config (one of them).
+  const auto users_file = text("users-file", config.users_file);
+  const bool users_flag = flags.Has("users");
+  if (users_flag + users_file.has_value() + (config.users.has_value() && !flags.Has("users-file")) >
+      1) {
+    return InvalidArgumentError("give the users once: --users, --users-file or \"users\"");
+  }
+  if (users_flag) {
+    OCTO_ASSIGN_OR_RETURN(std::vector<protocol::UserConfig> entries,
+                          protocol::ParseUsersFile(*flags.Get("users"), "--users"));
+    OCTO_ASSIGN_OR_RETURN(s.users, LoadUsers(entries, "--users"));
+  } else if (users_file) {
+    s.users_file = *users_file;
+    auto loaded = LoadUsersFile(s.users_file);
+    if (!loaded.ok()) return loaded.status();
+    s.users = std::move(*loaded);
+  } else if (config.users) {
+    OCTO_ASSIGN_OR_RETURN(s.users, LoadUsers(*config.users, "--config"));
+  }
+  const bool have_users = users_flag || users_file || config.users;
+
+  // The admin token: given, from a file, or generated (as Jupyter does) when there are no users.
   const auto token = text("token", config.token);
   const auto token_file = text("token-file", config.token_file);
   if (token && token_file) return InvalidArgumentError("give --token or --token-file, not both");
@@ -206,16 +264,25 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
   }
   if (!s.token.empty()) {
     OCTO_RETURN_IF_ERROR(CheckToken(s.token));
-  } else {
+  } else if (!have_users) {
     if (!IsLoopback(s.bind)) {
       return InvalidArgumentError("--bind " + s.bind +
-                                  " is reachable from other machines: give --token or "
-                                  "--token-file (a random token is generated only for loopback)");
+                                  " is reachable from other machines: give --token, "
+                                  "--token-file or users (a random token is generated only for "
+                                  "loopback)");
     }
     auto generated = RandomHex(16);
     if (!generated.ok()) return generated.status();
     s.token = *generated;
     s.token_generated = true;
+  }
+  if (!s.token.empty()) {
+    for (const User& u : s.users) {
+      if (u.name == "admin") {
+        return InvalidArgumentError(
+            "a user is named \"admin\", the name of the --token's user: rename it");
+      }
+    }
   }
   return s;
 }
@@ -224,16 +291,23 @@ bool IsLoopback(const std::string& address) {
   return address == "localhost" || address == "::1" || address.starts_with("127.");
 }
 
-std::string ServeUrl(const ServeSettings& settings, uint16_t port, const std::string& dataset) {
+std::string PublicBaseUrl(const ServeSettings& settings, uint16_t port) {
+  if (!settings.public_url.empty()) return settings.public_url;
   std::string host = settings.bind;
   if (host == "0.0.0.0" || host == "::") {
     char name[256] = {};
     host = gethostname(name, sizeof name - 1) == 0 && name[0] != '\0' ? name : "localhost";
   }
   if (host.find(':') != std::string::npos) host = "[" + host + "]";
-  std::string url = "http://" + host + ":" + std::to_string(port) + "/?token=" + settings.token;
-  if (!dataset.empty()) url += "&dataset=" + dataset;
-  return url;
+  return "http://" + host + ":" + std::to_string(port) + "/";
+}
+
+std::string ServeUrl(const ServeSettings& settings, uint16_t port, const std::string& dataset) {
+  const std::string url = PublicBaseUrl(settings, port);
+  std::string query;
+  if (!settings.token.empty()) query = "token=" + settings.token;
+  if (!dataset.empty()) query += (query.empty() ? "" : "&") + std::string("dataset=") + dataset;
+  return query.empty() ? url : url + "?" + query;
 }
 
 }  // namespace octoscope::app

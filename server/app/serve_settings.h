@@ -1,23 +1,34 @@
 // ServeSettings: the options of `octoscope serve`, from the flags and the --config file (a flag
 // on the command line wins over the file; docs/server.md "Configuration"), with defaults
-// resolved and checked: the cache folder, the web client's folder, the token (given, read from a
-// file, or a fresh random 128-bit one), and the safety rule that a non-loopback bind needs an
-// explicit token.
+// resolved and checked: the cache folder, the web client's folder, the admin token (given, read
+// from a file, or a fresh random 128-bit one when there are no users), the users, the public URL,
+// trusted proxies, the state folder and the session limits, and the safety rule that a
+// non-loopback bind needs an explicit token or users.
 //
 // Thread safety: functions of the main thread at start-up.
 #ifndef OCTOSCOPE_APP_SERVE_SETTINGS_H_
 #define OCTOSCOPE_APP_SERVE_SETTINGS_H_
 
 #include <array>
+#include <chrono>
 #include <cstdint>
 #include <filesystem>
 #include <string>
 #include <vector>
 
+#include "app/access_control.h"
 #include "app/flags.h"
 #include "util/result.h"
 
 namespace octoscope::app {
+
+// The limits of a shared server that the session layer enforces (docs/server.md).
+struct ServerLimits {
+  int max_sessions = 64;
+  int max_participants = 16;  // Per session.
+  // A session with no participant, and a dataset no session uses, is released after this long.
+  std::chrono::seconds idle_timeout{900};
+};
 
 struct ServeSettings {
   std::vector<std::filesystem::path> data_dirs;
@@ -37,6 +48,15 @@ struct ServeSettings {
   int io_threads = 2;
   int encoder_threads = 2;
   uint64_t max_upload_mb = 1024;
+  // "" = http://BIND:PORT/; else the checked URL with a trailing slash (PublicBaseUrl).
+  std::string public_url;
+  std::vector<std::string> trusted_proxies;  // Addresses or CIDRs (checked).
+  // The users (empty: only the admin token). users_file is set when they came from a file
+  // (re-read on SIGHUP).
+  std::vector<User> users;
+  std::filesystem::path users_file;
+  std::filesystem::path state_dir;  // View links and other durable state.
+  ServerLimits limits;
 };
 
 void AddServeFlags(Flags& flags);
@@ -45,7 +65,9 @@ void AddServeFlags(Flags& flags);
 // cannot be read (exit 2).
 Result<ServeSettings> ResolveServeSettings(const Flags& flags);
 
-// The URL to open: http://HOST:PORT/?token=TOKEN[&dataset=ID].
+// The base of every URL the server prints or puts in links: --public-url, else http://HOST:PORT/.
+std::string PublicBaseUrl(const ServeSettings& settings, uint16_t port);
+// The URL to open: BASE?token=TOKEN[&dataset=ID] (no token when there is no admin token).
 std::string ServeUrl(const ServeSettings& settings, uint16_t port, const std::string& dataset);
 
 // True for 127.0.0.0/8, ::1 and "localhost".

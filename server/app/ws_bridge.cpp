@@ -52,10 +52,17 @@ class SessionHandler : public net::WsHandler {
 }  // namespace
 
 net::WsHandlerFactory MakeSessionFactory(const session::SessionContext* context,
-                                         const session::ViewSessionOptions& options) {
-  return [context, options](const net::WsConnectInfo& info) -> std::unique_ptr<net::WsHandler> {
-    (void)info;
-    return std::make_unique<SessionHandler>(context, options);
+                                         const session::ViewSessionOptions& options,
+                                         OpenCheck may_open) {
+  return [context, options,
+          may_open](const net::WsConnectInfo& info) -> std::unique_ptr<net::WsHandler> {
+    session::ViewSessionOptions connection = options;
+    if (may_open) {
+      connection.may_open = [may_open, principal = info.principal](std::string_view id) {
+        return may_open(principal, id);
+      };
+    }
+    return std::make_unique<SessionHandler>(context, connection);
   };
 }
 

@@ -8,16 +8,23 @@
 #ifndef OCTOSCOPE_APP_WS_BRIDGE_H_
 #define OCTOSCOPE_APP_WS_BRIDGE_H_
 
+#include <functional>
 #include <memory>
+#include <string_view>
 
 #include "net/ws_handler.h"
 #include "session/view_session.h"
 
 namespace octoscope::app {
 
-// The factory the net::Server calls per connection. `context` must outlive the server.
+// Whether `principal` may open the dataset `id` (app/access_control.h).
+using OpenCheck = std::function<bool(const net::Principal& principal, std::string_view id)>;
+
+// The factory the net::Server calls per connection. `context` must outlive the server. With
+// `may_open`, each connection opens only the datasets its principal may see.
 net::WsHandlerFactory MakeSessionFactory(const session::SessionContext* context,
-                                         const session::ViewSessionOptions& options = {});
+                                         const session::ViewSessionOptions& options = {},
+                                         OpenCheck may_open = nullptr);
 
 }  // namespace octoscope::app
 

@@ -178,7 +178,12 @@ Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateStreamWithId(
 void DatasetRegistry::Rebalance() {
   std::vector<std::shared_ptr<Dataset>> open;
   for (const auto& dataset : List()) {
-    if (dataset->status().open) open.push_back(dataset);
+    // Opening ones count too: their build or cache load starts with its share.
+    const DatasetStatus status = dataset->status();
+    if (status.open || status.state == DatasetState::kBuilding ||
+        status.state == DatasetState::kStreaming) {
+      open.push_back(dataset);
+    }
   }
   if (open.empty()) return;
   const uint64_t share = options_.ram_bytes / open.size();

@@ -62,8 +62,12 @@ class DatasetRegistry {
   Result<std::shared_ptr<Dataset>> CreateStreamWithId(const protocol::StreamRequest& request,
                                                       const std::string& id);
 
-  // Divides the RAM budget equally among the datasets whose octree is loaded.
+  // Divides the RAM budget equally among the datasets in use: those whose octree is loaded or
+  // being loaded, built or streamed. Called by Open and CreateStream, and by whoever closes a
+  // dataset (the session layer's release).
   void Rebalance();
+  // The budget being divided.
+  uint64_t ram_bytes() const { return options_.ram_bytes; }
   const std::filesystem::path& cache_root() const { return options_.cache_root; }
 
   // Closes every dataset (builds cancelled, streams committed, pages flushed). Idempotent.

@@ -249,6 +249,10 @@ void ViewSession::OnMessage(protocol::ClientMessage message) {
 }
 
 void ViewSession::OnOpen(const protocol::OpenMessage& message) {
+  if (options_.may_open && !options_.may_open(message.dataset)) {
+    SendError("no dataset '" + message.dataset + "'", "open", false);
+    return;
+  }
   auto use = context_.datasets->Use(message.dataset);
   if (!use.ok()) {
     SendError(use.status().message(), "open", false);

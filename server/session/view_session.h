@@ -23,6 +23,8 @@
 #include <array>
 #include <chrono>
 #include <cstdint>
+#include <filesystem>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -63,6 +65,13 @@ struct SessionContext {
   ServerMetrics* metrics = nullptr;
   std::string server_version;
   FramePolicyOptions frame_policy;
+  // A shared server's limits and links (docs/server.md, "Configuration"; `serve` fills them).
+  int max_sessions = 64;
+  int max_participants = 16;  // Per session.
+  // A session nobody is connected to is released after this long (datasets: DatasetHub).
+  std::chrono::seconds idle_timeout{900};
+  std::string public_url;           // Base of share and view links, with a trailing slash.
+  std::filesystem::path state_dir;  // Durable state (view links).
 };
 
 struct ViewSessionOptions {
@@ -74,6 +83,9 @@ struct ViewSessionOptions {
   std::chrono::milliseconds dataset_event_interval{250};
   std::chrono::milliseconds data_refresh_interval{250};
   std::chrono::milliseconds stats_interval{1000};
+  // Whether this connection may open the dataset `id` (its principal's access); null = any. A
+  // dataset it may not open is answered like one that does not exist.
+  std::function<bool(std::string_view id)> may_open;
 };
 
 class ViewSession : public std::enable_shared_from_this<ViewSession> {

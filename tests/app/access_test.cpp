@@ -1,0 +1,289 @@
+// `octoscope serve` on a shared machine, end to end with the real binary on a loopback port: users
+// from a users file see only the datasets under their folders (list, describe, histogram,
+// WebSocket open), admins see all, an expired token is refused, SIGHUP re-reads the users, and a
+// dataset nobody views is released after idle-timeout-s (RAM re-divided) and reopens from its
+// cache.
+#include <gtest/gtest.h>
+#include <signal.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "app/server_process.h"
+#include "io/tiff_fixture.h"
+#include "net/net_test_client.h"
+
+namespace octoscope::app {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+namespace http = boost::beast::http;
+using net::testing::Fetch;
+using net::testing::WsClient;
+using std::chrono::seconds;
+using testing::ServerProcess;
+
+constexpr char kAdmin[] = "admin-token-0123456789abcdef";
+constexpr char kAlice[] = "alice-token-0123456789abcdef";
+constexpr char kBob[] = "bob-token-0123456789abcdef";
+constexpr char kOld[] = "old-token-0123456789abcdef";
+
+class AccessTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           ("octoscope-access-test-" + std::to_string(getpid()) + "-" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    // alice2 is not under alice: folders compare component by component.
+    for (const char* name : {"alice", "alice2", "bob"}) {
+      fs::create_directories(dir_ / "data" / name);
+      testing::TiffFixtureSpec spec;
+      spec.width = 24;
+      spec.height = 16;
+      spec.pages = 12;
+      ASSERT_TRUE(
+          testing::WriteTiffFixture(dir_ / "data" / name / (std::string(name) + ".tif"), spec));
+    }
+    WriteUsers(false);
+  }
+  void TearDown() override {
+    if (server_.running()) {
+      EXPECT_EQ(server_.Stop(), 0);
+    }
+    fs::remove_all(dir_);
+  }
+
+  void WriteUsers(bool with_bob) {
+    json users = json::array();
+    users.push_back(
+        {{"name", "alice"}, {"token", kAlice}, {"folders", {(dir_ / "data" / "alice").string()}}});
+    users.push_back({{"name", "old"},
+                     {"token", kOld},
+                     {"folders", {(dir_ / "data").string()}},
+                     {"expires", "2001-01-01T00:00:00Z"}});
+    if (with_bob) {
+      users.push_back(
+          {{"name", "bob"}, {"token", kBob}, {"folders", {(dir_ / "data" / "bob" / "").string()}}});
+    }
+    std::ofstream(dir_ / "users.json.new") << users.dump(2);
+    fs::rename(dir_ / "users.json.new", dir_ / "users.json");
+  }
+
+  void StartServer(std::vector<std::string> extra = {}) {
+    std::vector<std::string> args = {"--port",       "0",
+                                     "--cache",      (dir_ / "cache").string(),
+                                     "--data",       (dir_ / "data").string(),
+                                     "--token",      kAdmin,
+                                     "--users-file", (dir_ / "users.json").string(),
+                                     "--ram-mb",     "256",
+                                     "--device",     "cpu"};
+    args.insert(args.end(), extra.begin(), extra.end());
+    ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY, args, (dir_ / "server.log").string()))
+        << server_.error();
+  }
+
+  net::testing::HttpResult Get(const std::string& target, const char* token) {
+    return Fetch(server_.port(), http::verb::get, target,
+                 {{"Authorization", std::string("Bearer ") + token}});
+  }
+
+  // Dataset ids by file name ("alice.tif"), as `token` lists them.
+  std::map<std::string, std::string> List(const char* token) {
+    auto r = Get("/api/datasets", token);
+    EXPECT_EQ(r.status, 200) << r.body;
+    std::map<std::string, std::string> ids;
+    if (r.status != 200) return ids;
+    for (const json& d : json::parse(r.body)) {
+      ids[fs::path(d["name"].get<std::string>()).filename().string()] = d["id"].get<std::string>();
+    }
+    return ids;
+  }
+
+  // The value of metric line `name` (with labels), or -1.
+  double Metric(const std::string& name) {
+    auto r = Get("/metrics", kAdmin);
+    const size_t at = r.body.find("\n" + name + " ");
+    if (at == std::string::npos) return -1;
+    return std::stod(r.body.substr(at + name.size() + 2));
+  }
+
+  static std::optional<json> ReadEvent(WsClient& ws, const std::string& type,
+                                       seconds timeout = seconds(30)) {
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    while (std::chrono::steady_clock::now() < deadline) {
+      auto m = ws.Read(timeout);
+      if (!m.ok) return std::nullopt;
+      if (m.binary) continue;
+      json event = json::parse(m.data);
+      if (event.value("type", "") == type) return event;
+    }
+    return std::nullopt;
+  }
+
+  // Connects with `token`, says hello and asks to open `id`; the first "opened" or "error" event.
+  std::optional<json> Open(WsClient& ws, const char* token, const std::string& id) {
+    if (!ws.Connect(server_.port(), std::string("/ws?token=") + token).empty()) return std::nullopt;
+    ws.Send(json{{"type", "hello"}, {"client", "access_test"}, {"protocol", 1}}.dump());
+    if (!ReadEvent(ws, "welcome")) return std::nullopt;
+    ws.Send(json{{"type", "open"}, {"dataset", id}}.dump());
+    const auto deadline = std::chrono::steady_clock::now() + seconds(30);
+    while (std::chrono::steady_clock::now() < deadline) {
+      auto m = ws.Read(seconds(30));
+      if (!m.ok) return std::nullopt;
+      if (m.binary) continue;
+      json event = json::parse(m.data);
+      const std::string type = event.value("type", "");
+      if (type == "opened" || type == "error") return event;
+    }
+    return std::nullopt;
+  }
+
+  fs::path dir_;
+  ServerProcess server_;
+};
+
+TEST_F(AccessTest, UsersSeeOnlyTheirFoldersAndAdminsSeeAll) {
+  StartServer();
+  const auto all = List(kAdmin);
+  ASSERT_EQ(all.size(), 3u);
+  const std::string a = all.at("alice.tif"), a2 = all.at("alice2.tif"), b = all.at("bob.tif");
+
+  // Alice lists only her folder's dataset (not alice2, whose path only starts with hers).
+  const auto mine = List(kAlice);
+  ASSERT_EQ(mine.size(), 1u);
+  EXPECT_EQ(mine.count("alice.tif"), 1u);
+  EXPECT_EQ(Get("/api/datasets/" + a, kAlice).status, 200);
+  EXPECT_EQ(Get("/api/datasets/" + a + "/histogram", kAlice).status, 200);
+  // Others' datasets answer exactly like unknown ids.
+  for (const std::string& id : {b, a2}) {
+    auto r = Get("/api/datasets/" + id, kAlice);
+    EXPECT_EQ(r.status, 404);
+    EXPECT_EQ(json::parse(r.body), json({{"error", "no dataset '" + id + "'"}}));
+    EXPECT_EQ(Get("/api/datasets/" + id + "/histogram", kAlice).status, 404);
+    EXPECT_EQ(Fetch(server_.port(), http::verb::post,
+                    "/api/datasets/" + id + "/finish?token=" + std::string(kAlice))
+                  .status,
+              404);
+  }
+  EXPECT_EQ(Get("/api/datasets/" + b, kAdmin).status, 200);
+  // /metrics is for admins.
+  EXPECT_EQ(Get("/metrics", kAlice).status, 403);
+  EXPECT_EQ(Get("/metrics", kAdmin).status, 200);
+  // An expired token: 401 saying so. A wrong one: the usual answer.
+  auto expired = Get("/api/datasets", kOld);
+  EXPECT_EQ(expired.status, 401);
+  EXPECT_EQ(json::parse(expired.body), json({{"error", "token expired"}}));
+  EXPECT_EQ(json::parse(Get("/api/datasets", "nobody-token-0123456789abc").body),
+            json({{"error", "missing or wrong token"}}));
+  WsClient refused;
+  EXPECT_NE(refused.Connect(server_.port(), std::string("/ws?token=") + kOld), "");
+
+  // WebSocket open: her dataset opens; bob's is "no dataset", like a made-up id.
+  WsClient ws;
+  auto opened = Open(ws, kAlice, a);
+  ASSERT_TRUE(opened.has_value());
+  EXPECT_EQ((*opened)["type"], "opened") << opened->dump();
+  WsClient other;
+  auto denied = Open(other, kAlice, b);
+  ASSERT_TRUE(denied.has_value());
+  EXPECT_EQ((*denied)["type"], "error");
+  EXPECT_EQ((*denied)["message"], "no dataset '" + b + "'") << denied->dump();
+
+  // A stream alice creates is hers: she and the admins see it.
+  auto created =
+      Fetch(server_.port(), http::verb::post, "/api/datasets?token=" + std::string(kAlice), {},
+            R"({"size":[8,8,4],"channels":1,"dtype":"uint16"})");
+  ASSERT_EQ(created.status, 201) << created.body;
+  const std::string stream = json::parse(created.body)["id"];
+  EXPECT_EQ(Get("/api/datasets/" + stream, kAlice).status, 200);
+  EXPECT_EQ(Get("/api/datasets/" + stream, kAdmin).status, 200);
+
+  // SIGHUP re-reads the users file: bob appears and sees his folder and not alice's stream.
+  EXPECT_EQ(Get("/api/datasets", kBob).status, 401);
+  WriteUsers(true);
+  ASSERT_EQ(kill(server_.pid(), SIGHUP), 0);
+  int status = 401;
+  for (int i = 0; i < 100 && status == 401; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    status = Get("/api/datasets", kBob).status;
+  }
+  ASSERT_EQ(status, 200);
+  const auto bobs = List(kBob);
+  ASSERT_EQ(bobs.size(), 1u);
+  EXPECT_EQ(bobs.count("bob.tif"), 1u);
+  EXPECT_EQ(Get("/api/datasets/" + stream, kBob).status, 404);
+  // A broken users file keeps the users in force.
+  std::ofstream(dir_ / "users.json") << "[{\"name\": ";
+  ASSERT_EQ(kill(server_.pid(), SIGHUP), 0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  EXPECT_EQ(Get("/api/datasets", kBob).status, 200);
+  EXPECT_EQ(Get("/api/datasets", kAlice).status, 200);
+}
+
+TEST_F(AccessTest, IdleDatasetsAreReleasedRamIsRedividedAndTheyReopenFromTheirCache) {
+  StartServer({"--idle-timeout-s", "1"});
+  const auto all = List(kAdmin);
+  const std::string a = all.at("alice.tif"), b = all.at("bob.tif");
+  const std::string a_budget = "octoscope_dataset_ram_budget_bytes{dataset=\"" + a + "\"}";
+  const std::string b_budget = "octoscope_dataset_ram_budget_bytes{dataset=\"" + b + "\"}";
+  const std::string b_open = "octoscope_dataset_open{dataset=\"" + b + "\"}";
+  auto ready = [&](const std::string& id) {
+    for (int i = 0; i < 200; ++i) {
+      auto d = json::parse(Get("/api/datasets/" + id, kAdmin).body);
+      if (d["state"] == "ready") return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    }
+    return false;
+  };
+  WsClient wa, wb;
+  ASSERT_EQ((*Open(wa, kAdmin, a))["type"], "opened");
+  ASSERT_EQ((*Open(wb, kAdmin, b))["type"], "opened");
+  ASSERT_TRUE(ready(a));
+  ASSERT_TRUE(ready(b));
+  // Two datasets in use: half of the 256 MiB each.
+  EXPECT_EQ(Metric(a_budget), 128.0 * (1 << 20));
+  EXPECT_EQ(Metric(b_budget), 128.0 * (1 << 20));
+  EXPECT_EQ(Metric(b_open), 1);
+  std::map<std::string, fs::file_time_type> cache_files;
+  for (const auto& e : fs::recursive_directory_iterator(dir_ / "cache" / b)) {
+    if (e.is_regular_file()) cache_files[e.path().string()] = e.last_write_time();
+  }
+  ASSERT_FALSE(cache_files.empty());
+
+  // Bob's viewer leaves: after the idle timeout his dataset is closed and alice's gets it all.
+  wb.Close();
+  double open = 1;
+  for (int i = 0; i < 100 && open != 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    open = Metric(b_open);
+  }
+  EXPECT_EQ(open, 0);
+  EXPECT_GE(Metric("octoscope_dataset_releases_total"), 1);
+  EXPECT_EQ(Metric(a_budget), 256.0 * (1 << 20));
+  EXPECT_EQ(Metric(b_budget), -1);  // Not listed while closed.
+  // The dataset in use is never released.
+  EXPECT_EQ(Metric("octoscope_dataset_open{dataset=\"" + a + "\"}"), 1);
+
+  // Reopened: from the cache (no file of it rewritten), and the budget is divided again.
+  WsClient again;
+  ASSERT_EQ((*Open(again, kAdmin, b))["type"], "opened");
+  ASSERT_TRUE(ready(b));
+  EXPECT_EQ(Metric(b_open), 1);
+  EXPECT_EQ(Metric(a_budget), 128.0 * (1 << 20));
+  EXPECT_EQ(Metric(b_budget), 128.0 * (1 << 20));
+  for (const auto& [path, time] : cache_files) {
+    if (path.ends_with(".lock") || path.ends_with("lock")) continue;
+    std::error_code ec;
+    EXPECT_EQ(fs::last_write_time(path, ec), time) << path << " was rewritten";
+  }
+}
+
+}  // namespace
+}  // namespace octoscope::app
