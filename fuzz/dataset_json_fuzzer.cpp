@@ -1,13 +1,15 @@
 // libFuzzer harness over the JSON a client or an acquisition folder hands the dataset layer: the
 // body of POST /api/datasets and the sidecar of a watched folder (protocol::ParseStreamRequest,
-// both kinds). Nothing may crash, hang or allocate unboundedly: errors are fine. A parsed request
-// must respect the documented limits.
+// both kinds), and the JSON an administrator hands the server: the `serve --config` file and the
+// users file (protocol::ParseServeConfig, ParseUsersFile). Nothing may crash, hang or allocate
+// unboundedly: errors are fine. A parsed request must respect the documented limits.
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
 #include <string_view>
 
 #include "protocol/dataset_json.h"
+#include "protocol/serve_config.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   using namespace octoscope::protocol;
@@ -22,6 +24,17 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (!request->channel_names.empty() &&
         request->channel_names.size() != static_cast<size_t>(request->channels)) {
       std::abort();
+    }
+  }
+  if (auto config = ParseServeConfig(text, "fuzz-input"); config.ok()) {
+    if (config->max_sessions && (*config->max_sessions < 1 || *config->max_sessions > 100000)) {
+      std::abort();
+    }
+    if (config->users && config->users->size() > kMaxUsers) std::abort();
+  }
+  if (auto users = ParseUsersFile(text, "fuzz-input"); users.ok()) {
+    for (const UserConfig& u : *users) {
+      if (u.name.empty() || u.token.has_value() == u.token_file.has_value()) std::abort();
     }
   }
   return 0;
