@@ -24,6 +24,7 @@
 #include "dataset/demo_stream.h"
 #include "dataset/folder_watcher.h"
 #include "encode/jpeg_encoder.h"
+#include "net/auth.h"
 #include "net/server.h"
 #include "protocol/query_string.h"
 #include "render/device.h"
@@ -184,7 +185,7 @@ int RunServe(std::span<const std::string> args) {
   server_options.bind_address = settings->bind;
   server_options.port = settings->port;
   server_options.io_threads = settings->io_threads;
-  server_options.token = settings->token;
+  server_options.authenticator = std::make_shared<net::TokenAuthenticator>(settings->token);
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
   ApiRoutesOptions routes_options;
