@@ -155,6 +155,17 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
     if (method != "GET") return method_not_allowed("GET");
     return Health(responder);
   }
+  // Share and view links read, nothing else: no uploads, no streams, no metrics (the dataset
+  // scoping of what they read is the access control's).
+  if (request.principal.kind != net::Principal::Kind::kUser) {
+    const bool readable =
+        method == "GET" && (path == "/api/datasets" || path.starts_with("/api/datasets/") ||
+                            path.starts_with("/api/views/"));
+    if (!readable) {
+      return Respond(responder,
+                     HttpResponse::Error(403, "share and view links may only read datasets"));
+    }
+  }
   if (path == "/metrics") {
     if (method != "GET") return method_not_allowed("GET");
     return Metrics(responder);

@@ -323,6 +323,13 @@ TEST_F(ShareTest, ViewerFollowsCannotDriveUntilPromotedAndRevocationDisconnects)
   WsClient again;
   EXPECT_NE(ConnectShare(again, viewer_token), "");
   EXPECT_EQ(again.handshake_status(), 401);
+  // A live link reads datasets and nothing else.
+  const std::string share = "?share=" + controller_link["token"].get<std::string>();
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/datasets" + share).status, 200);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/metrics" + share).status, 403);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::post, "/api/datasets" + share, {}, "{}").status, 403);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/datasets?share=" + viewer_token).status,
+            401);
   // The controller was not affected.
   controller.Send(json{{"type", "ping"}, {"t", 1}}.dump());
   EXPECT_TRUE(ReadEvent(controller, "pong").has_value());
