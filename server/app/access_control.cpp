@@ -149,16 +149,25 @@ std::optional<net::Principal> AccessControl::Authenticate(std::string_view autho
     share = share_lookup_;
     view = view_lookup_;
   }
+  const net::RequestCredentials c = net::ReadCredentials(authorization, raw_query);
   if (const std::optional<size_t> i = MatchUser(*users, authorization, raw_query)) {
     const User& u = (*users)[*i];
     if (u.expires && std::chrono::system_clock::now() >= *u.expires) return std::nullopt;
+    // A signed-in user following a share or view link uses the link (its role and scope).
+    if (c.share) {
+      if (!share || !share(*c.share)) return std::nullopt;
+      return net::Principal{net::Principal::Kind::kShare, u.name, false, *c.share};
+    }
+    if (c.view) {
+      if (!view || !view(*c.view)) return std::nullopt;
+      return net::Principal{net::Principal::Kind::kView, u.name, false, *c.view};
+    }
     net::Principal p;
     p.kind = net::Principal::Kind::kUser;
     p.user = u.name;
     p.admin = u.admin;
     return p;
   }
-  const net::RequestCredentials c = net::ReadCredentials(authorization, raw_query);
   if (c.share && share && share(*c.share)) {
     return net::Principal{net::Principal::Kind::kShare, "", false, *c.share};
   }
@@ -179,6 +188,9 @@ std::string AccessControl::RefusalMessage(std::string_view authorization,
   if (i && (*users)[*i].expires && std::chrono::system_clock::now() >= *(*users)[*i].expires) {
     return "token expired";
   }
+  const net::RequestCredentials c = net::ReadCredentials(authorization, raw_query);
+  if (c.share) return "this share link is not valid (revoked or expired)";
+  if (c.view) return "no such view link";
   return "missing or wrong token";
 }
 

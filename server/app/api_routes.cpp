@@ -9,6 +9,7 @@
 #include "protocol/api_json.h"
 #include "protocol/dataset_json.h"
 #include "protocol/query_string.h"
+#include "protocol/ws_messages.h"
 #include "volume/data_type.h"
 
 namespace octoscope::app {
@@ -158,6 +159,17 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
   auto forbidden = [&](std::string_view what) {
     Respond(responder, HttpResponse::Error(403, what));
   };
+  // Share and view links read, nothing else: no uploads, no streams, no metrics (the dataset
+  // scoping of what they read is the access control's).
+  if (request.principal.kind != net::Principal::Kind::kUser) {
+    const bool readable =
+        method == "GET" && (path == "/api/datasets" || path.starts_with("/api/datasets/") ||
+                            path.starts_with("/api/views/"));
+    if (!readable) {
+      return Respond(responder,
+                     HttpResponse::Error(403, "share and view links may only read datasets"));
+    }
+  }
   if (path == "/metrics") {
     if (method != "GET") return method_not_allowed("GET");
     if (options_.access != nullptr && !AccessControl::MayReadMetrics(principal)) {
@@ -182,6 +194,11 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
       return CreateStream(request, responder);
     }
     return method_not_allowed("GET, POST");
+  }
+  if (path.starts_with("/api/views/")) {
+    if (method != "GET") return method_not_allowed("GET");
+    return GetView(request, std::string(path.substr(std::string_view("/api/views/").size())),
+                   responder);
   }
   std::string id, rest;
   if (!SplitDatasetPath(path, &id, &rest)) {
@@ -215,6 +232,46 @@ std::shared_ptr<dataset::Dataset> ApiRoutes::FindVisible(const net::Principal& p
   std::shared_ptr<dataset::Dataset> dataset = registry_->Find(id);
   if (dataset == nullptr || options_.access == nullptr) return dataset;
   return options_.access->MayView(principal, *dataset) ? dataset : nullptr;
+}
+
+void ApiRoutes::GetView(const net::HttpRequest& request, const std::string& id,
+                        const net::HttpResponder& responder) {
+  session::ViewStore* views = options_.views;
+  const std::optional<std::string> dataset =
+      views != nullptr && protocol::IsViewLinkId(id) ? views->DatasetOf(id) : std::nullopt;
+  // A view link reads its own document; a user the views of datasets they may see (404 like an
+  // unknown id otherwise); a share link none.
+  const net::Principal& principal = request.principal;
+  bool visible = dataset.has_value();
+  if (visible && options_.access != nullptr) {
+    if (principal.kind == net::Principal::Kind::kView) {
+      visible = principal.credential == id;
+    } else if (principal.kind == net::Principal::Kind::kShare) {
+      visible = false;
+    } else if (!principal.admin) {
+      const std::shared_ptr<dataset::Dataset> found =
+          dataset->empty() ? nullptr : registry_->Find(*dataset);
+      visible = found != nullptr && options_.access->MayView(principal, *found);
+    }
+  }
+  if (!visible) return Respond(responder, HttpResponse::Error(404, "no view link '" + id + "'"));
+  // The stored document is read (and checked) off the I/O thread.
+  uploads_->Submit(next_upload_.fetch_add(1), [views, id, responder] {
+    auto text = views->LoadText(id);
+    if (text.ok()) {
+      auto link = protocol::ParseViewLink(*text);
+      if (!link.ok()) {
+        text = CorruptError("view link " + id +
+                            " is not a valid view document: " + link.status().message());
+      }
+    }
+    if (!text.ok()) {
+      const int status = text.status().code() == StatusCode::kNotFound ? 404 : 500;
+      responder.Respond(HttpResponse::Error(status, text.status().message()));
+      return;
+    }
+    responder.Respond(HttpResponse::Json(200, std::move(*text)));
+  });
 }
 
 void ApiRoutes::Health(const net::HttpResponder& responder) {

@@ -1,5 +1,6 @@
 // ApiRoutes: the REST API of `octoscope serve` (docs/api.md) on top of the dataset registry —
-// health, metrics, the dataset list, histograms, and streaming ingest (create, slabs, finish).
+// health, metrics, the dataset list, histograms, streaming ingest (create, slabs, finish) and
+// stored view links (GET /api/views/{id}).
 // Every dataset-scoped route answers only for datasets the request's principal may see
 // (AccessControl; others are 404 like unknown ids); /metrics is for admins, creating and
 // feeding streams for users.
@@ -22,6 +23,7 @@
 #include "net/api_handler.h"
 #include "session/dataset_hub.h"
 #include "session/server_metrics.h"
+#include "session/view_store.h"
 #include "util/latest_wins_executor.h"
 
 namespace octoscope::app {
@@ -34,6 +36,7 @@ struct ApiRoutesOptions {
   // Records stream creators (the same object as `access`, mutable).
   AccessControl* creators = nullptr;
   int max_concurrent_uploads = 8;  // More at once: 429.
+  session::ViewStore* views = nullptr;  // GET /api/views/{id}; null: 404.
 };
 
 class ApiRoutes : public net::ApiHandler {
@@ -59,6 +62,8 @@ class ApiRoutes : public net::ApiHandler {
                const net::HttpResponder& responder);
   void Finish(const net::HttpRequest& request, const std::string& id,
               const net::HttpResponder& responder);
+  void GetView(const net::HttpRequest& request, const std::string& id,
+               const net::HttpResponder& responder);
   // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
   bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
   void Respond(const net::HttpResponder& responder, net::HttpResponse response);

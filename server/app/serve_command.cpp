@@ -31,7 +31,9 @@
 #include "render/render_service.h"
 #include "session/dataset_hub.h"
 #include "session/server_metrics.h"
+#include "session/session_registry.h"
 #include "session/view_session.h"
+#include "session/view_store.h"
 #include "util/latest_wins_executor.h"
 #include "util/logger.h"
 #include "util/random_token.h"
@@ -70,6 +72,26 @@ int WaitForStopSignal(const sigset_t& set) {
   while (sigwait(&set, &signal) != 0) {
   }
   return signal;
+}
+
+// What a WebSocket connection authenticated as (the Authenticator's Principal): a user, a share
+// link or a view link.
+WsCredential ConnectionCredential(const net::WsConnectInfo& info) {
+  WsCredential credential;
+  credential.user = info.principal.user;
+  credential.credential = info.principal.credential;
+  switch (info.principal.kind) {
+    case net::Principal::Kind::kUser:
+      credential.kind = WsCredential::Kind::kUser;
+      break;
+    case net::Principal::Kind::kShare:
+      credential.kind = WsCredential::Kind::kShare;
+      break;
+    case net::Principal::Kind::kView:
+      credential.kind = WsCredential::Kind::kView;
+      break;
+  }
+  return credential;
 }
 
 }  // namespace
@@ -159,15 +181,29 @@ int RunServe(std::span<const std::string> args) {
   session_context.timers = &timers;
   session_context.metrics = &metrics;
   session_context.server_version = kVersion;
-  session_context.max_sessions = settings->limits.max_sessions;
+  // Sharing: view links in the state folder, sessions within their limits.
+  auto views = session::ViewStore::Open(settings->state_dir);
+  if (!views.ok()) return Fail("--state-dir", views.status());
+  session::SessionLimits limits;
+  limits.max_sessions = settings->limits.max_sessions;
+  limits.idle_timeout = settings->limits.idle_timeout;
+  auto sessions = std::make_unique<session::SessionRegistry>(&timers, limits);
+  session_context.registry = sessions.get();
+  session_context.views = views->get();
   session_context.max_participants = settings->limits.max_participants;
-  session_context.idle_timeout = settings->limits.idle_timeout;
-  // (With --port 0 and no --public-url this names port 0: give --public-url for links then.)
-  session_context.public_url = PublicBaseUrl(*settings, settings->port);
-  session_context.state_dir = settings->state_dir;
+  session::LinkBase link_base;
+  session_context.link_base = &link_base;
 
-  // Who may do what: the users (and the admin token); share and view links plug in here.
+  // Who may do what: the users (and the admin token), share links scoped to their session's
+  // dataset, view links to the view's dataset.
   auto access = std::make_shared<AccessControl>(UsersWithAdmin(settings->users, settings->token));
+  access->SetShareLookup(
+      [sessions = sessions.get()](std::string_view token) -> std::optional<std::string> {
+        auto share = sessions->FindShare(token);
+        if (!share) return std::nullopt;
+        return share->session->dataset_id();
+      });
+  access->SetViewLookup([views = views->get()](std::string_view id) { return views->DatasetOf(id); });
   auto may_open = [access, registry = registry->get()](const net::Principal& principal,
                                                        std::string_view id) {
     std::shared_ptr<dataset::Dataset> dataset = registry->Find(id);
@@ -186,11 +222,14 @@ int RunServe(std::span<const std::string> args) {
   routes_options.version = kVersion;
   routes_options.access = access.get();
   routes_options.creators = access.get();
+  routes_options.views = views->get();
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
                                             routes_options);
-  auto server = net::Server::Start(server_options, routes,
-                                   MakeSessionFactory(&session_context, {}, may_open), logger);
+  auto server = net::Server::Start(
+      server_options, routes, MakeSessionFactory(&session_context, ConnectionCredential, {}, may_open), logger);
   if (!server.ok()) return Fail("listen", server.status());
+  // Links carry the public URL (default: where this server listens).
+  link_base.Set(PublicBaseUrl(*settings, (*server)->port()));
   metrics.SetHttpCounts([server = server->get()] { return server->responses_by_status(); });
 
   std::printf("%s\n", ServeUrl(*settings, (*server)->port(), open_dataset).c_str());
@@ -221,6 +260,7 @@ int RunServe(std::span<const std::string> args) {
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
   // In order: no new connections and sessions closed; no new data; datasets flushed.
   (*server)->Shutdown();
+  sessions.reset();  // Parked sessions released.
   metrics.SetHttpCounts(nullptr);
   watchers.clear();
   demo.reset();
