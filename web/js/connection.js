@@ -16,12 +16,14 @@ export const CLOSE_RESUMED_ELSEWHERE = 4002;
 export const CLOSE_KICKED = 4003;
 export const CLOSE_GONE = 4004;
 
-// What a close means for the page: {retry: bool, message: text for the user}. Pure.
-export function closeOutcome(code, reason) {
+// What a close means for the page: {retry: bool, message: text for the user}; `joined`: the
+// connection had been welcomed into a session. Pure.
+export function closeOutcome(code, reason, joined = true) {
   const why = typeof reason === 'string' && reason ? reason : '';
   switch (code) {
     case CLOSE_REVOKED:
-      return {retry: false, message: 'The owner revoked this share link — you have left the session.'};
+      return {retry: false, message: joined ? 'The owner revoked this share link — you have left the session.' :
+        'This share link no longer works: the owner revoked it, or it expired.'};
     case CLOSE_KICKED:
       return {retry: false, message: 'The owner removed you from the session.'};
     case CLOSE_RESUMED_ELSEWHERE:
@@ -68,6 +70,7 @@ export class Connection {
     }
     ws.binaryType = 'arraybuffer';
     this.ws = ws;
+    this.welcomed = false;
     ws.onopen = () => {
       const reconnect = this.everOpened;
       this.everOpened = true;
@@ -92,6 +95,7 @@ export class Connection {
           if (Number.isFinite(msg.t)) this.handlers.onPong?.(performance.now() - msg.t);
           return;
         }
+        if (msg.type === 'welcome') this.welcomed = true;
         this.handlers.onEvent?.(msg);
         return;
       }
@@ -109,7 +113,7 @@ export class Connection {
       if (this.ws !== ws) return;
       this.ws = null;
       if (this.stopped) return;
-      const outcome = closeOutcome(ev.code, ev.reason);
+      const outcome = closeOutcome(ev.code, ev.reason, this.welcomed);
       if (!outcome.retry) {
         this.stopped = true;
         this.status(ev.code >= 4000 ? 'ended' : 'failed', outcome.message);

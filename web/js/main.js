@@ -6,7 +6,7 @@
 
 import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset} from './url_state.js';
 import {Connection} from './connection.js';
-import {Participants} from './participants.js';
+import {cleanName, Participants} from './participants.js';
 import {SharePanel} from './share_panel.js';
 import {AXIS_COLORS, Layout, View, VIEW_IDS} from './views.js';
 import {CameraControls} from './camera_controls.js';
@@ -186,7 +186,7 @@ class App {
 
   displayName() {
     try {
-      return (localStorage.getItem(NAME_KEY) || '').trim().slice(0, 64);
+      return cleanName(localStorage.getItem(NAME_KEY));
     } catch {
       return '';
     }
@@ -194,7 +194,7 @@ class App {
 
   setDisplayName(name) {
     try {
-      if (name.trim()) localStorage.setItem(NAME_KEY, name.trim().slice(0, 64)); else localStorage.removeItem(NAME_KEY);
+      if (cleanName(name)) localStorage.setItem(NAME_KEY, cleanName(name)); else localStorage.removeItem(NAME_KEY);
     } catch {
       // Storage disabled: the server's name for this participant stays.
     }
@@ -225,6 +225,9 @@ class App {
 
   connected(reconnect) {
     this.reconnecting = reconnect;
+    // A view link's page forks the link again (its `opened` may come before `welcome`): put back
+    // what this page had changed since.
+    if (this.url.mode === 'view') this.restoreAfterOpen = reconnect && this.state ? this.stateDocument() : null;
     this.connection.send({type: 'quality', ...this.quality});
     for (const v of Object.values(this.views)) {
       v.resize();
@@ -244,12 +247,7 @@ class App {
     const resumed = Boolean(this.sentResume) && msg.resume === this.sentResume;
     this.sentResume = '';
     this.applyRole();
-    if (this.url.mode === 'share' || resumed) return;
-    if (this.url.mode === 'view') {
-      // The link is forked again: put back what this page had changed since.
-      this.restoreAfterOpen = this.reconnecting && this.state ? this.stateDocument() : null;
-      return;
-    }
+    if (this.url.mode !== 'user' || resumed) return;
     this.sendOpen(this.reconnecting);
   }
 

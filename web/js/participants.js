@@ -16,6 +16,20 @@ export function roleLabel(role) {
   return {owner: 'owner', controller: 'controller', viewer: 'viewer'}[role] ?? 'unknown';
 }
 
+// The name this page sends in `hello`: no control characters, spaces collapsed, at most
+// MAX_NAME_BYTES of UTF-8 (the server counts bytes), never a code point cut in half; '' if none.
+export const MAX_NAME_BYTES = 64;
+export function cleanName(raw) {
+  const s = String(raw ?? '').replace(/[\u0000-\u001f\u007f-\u009f]/g, ' ').replace(/\s+/g, ' ').trim();
+  const encoder = new TextEncoder();
+  let out = '';
+  for (const ch of s) {
+    if (encoder.encode(out + ch).length > MAX_NAME_BYTES) break;
+    out += ch;
+  }
+  return out.trim();
+}
+
 // One participant of a `participants` event, checked and normalised; null when unusable.
 export function normalizeParticipant(p) {
   if (!p || typeof p !== 'object') return null;

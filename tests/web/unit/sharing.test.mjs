@@ -2,7 +2,7 @@
 // follows, the owner's actions), the share links list and the close codes a participant sees.
 import {test} from 'node:test';
 import assert from 'node:assert/strict';
-import {canDrive, normalizeParticipant, Participants, sortParticipants} from '../../../web/js/participants.js';
+import {canDrive, cleanName, MAX_NAME_BYTES, normalizeParticipant, Participants, sortParticipants} from '../../../web/js/participants.js';
 import {abbreviateToken, describeExpiry, normalizeShare} from '../../../web/js/share_panel.js';
 import {closeOutcome, CLOSE_GONE, CLOSE_KICKED, CLOSE_RESUMED_ELSEWHERE, CLOSE_REVOKED} from '../../../web/js/connection.js';
 
@@ -93,6 +93,7 @@ test('share links: checked, expiry described, tokens abbreviated', () => {
 test('close codes: revoked and removed participants do not come back; busy servers are retried', () => {
   assert.deepEqual(closeOutcome(CLOSE_REVOKED, 'share link revoked'),
       {retry: false, message: 'The owner revoked this share link — you have left the session.'});
+  assert.match(closeOutcome(CLOSE_REVOKED, 'share link revoked', false).message, /no longer works/);
   assert.equal(closeOutcome(CLOSE_KICKED, '').retry, false);
   assert.match(closeOutcome(CLOSE_KICKED, 'removed from the session').message, /removed you/);
   assert.equal(CLOSE_REVOKED, 4001);  // docs/protocol.md
@@ -106,4 +107,16 @@ test('close codes: revoked and removed participants do not come back; busy serve
   assert.deepEqual(closeOutcome(1013, 'session full'), {retry: true, message: 'server busy: session full'});
   assert.equal(closeOutcome(1006, '').retry, true);
   assert.equal(closeOutcome(1001, 'server shutting down').retry, true);
+});
+
+test('the name sent in hello: clean, at most 64 bytes of UTF-8, never half a character', () => {
+  assert.equal(cleanName('  Ada\tLovelace\n '), 'Ada Lovelace');
+  assert.equal(cleanName('\u0000\u0007'), '');
+  assert.equal(cleanName(null), '');
+  assert.equal(cleanName('a'.repeat(100)), 'a'.repeat(64));
+  const cut = cleanName('é'.repeat(40));  // 2 bytes each: 32 fit
+  assert.equal(cut, 'é'.repeat(32));
+  const emoji = cleanName('x' + '🔬'.repeat(20));  // 4 bytes each: 15 fit after the x
+  assert.equal(new TextEncoder().encode(emoji).length, 61);
+  assert.ok(new TextEncoder().encode(cleanName('日本語'.repeat(30))).length <= MAX_NAME_BYTES);
 });
