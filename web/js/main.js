@@ -27,6 +27,7 @@ const HISTOGRAM_REFRESH_MS = 2000;
 const VIEW_ONLY_HINT_MS = 4000;
 const RESUME_KEY = 'octoscope.resume';
 const NAME_KEY = 'octoscope.name';
+const LOSSLESS_KEY = 'octoscope.lossless';
 
 class App {
   constructor() {
@@ -46,7 +47,9 @@ class App {
     this.state = null;  // {camera, params, slices: {position_um}, layout}
     this.cam = null;    // Orbit camera of the 3-D view.
     this.version = 0;
-    this.quality = {lod_bias: 0, lossless_final: false};
+    // Lossless finals are this browser's preference: on from the first frame of every page.
+    this.quality = {lod_bias: 0, lossless_final: readStorage(LOSSLESS_KEY) === '1'};
+    document.querySelector('#lossless').checked = this.quality.lossless_final;
     this.pending = {};  // Messages waiting for the next animation frame, by type.
     this.interactions = new Set();
     this.hovered = null;
@@ -101,6 +104,7 @@ class App {
       },
       onLossless: (on) => {
         this.quality.lossless_final = on;
+        writeStorage(LOSSLESS_KEY, on ? '1' : '');
         this.connection.send({type: 'quality', lossless_final: on});
       },
       onClipPlanes: (docs, interactive) => {
@@ -185,40 +189,22 @@ class App {
   }
 
   displayName() {
-    try {
-      return cleanName(localStorage.getItem(NAME_KEY));
-    } catch {
-      return '';
-    }
+    return cleanName(readStorage(NAME_KEY));
   }
 
   setDisplayName(name) {
-    try {
-      if (cleanName(name)) localStorage.setItem(NAME_KEY, cleanName(name)); else localStorage.removeItem(NAME_KEY);
-    } catch {
-      // Storage disabled: the server's name for this participant stays.
-    }
+    writeStorage(NAME_KEY, cleanName(name));
   }
 
   loadResume() {
-    if (this.url.mode !== 'user') return '';
-    try {
-      return sessionStorage.getItem(RESUME_KEY) || '';
-    } catch {
-      return '';
-    }
+    return this.url.mode === 'user' ? readStorage(RESUME_KEY, () => sessionStorage) : '';
   }
 
   // The owner's resume key (`welcome`): reattaches this tab to its session after a reconnect or a
   // reload, so its share links and participants stay.
   storeResume(key) {
     this.resume = typeof key === 'string' ? key : '';
-    if (this.url.mode !== 'user') return;
-    try {
-      if (this.resume) sessionStorage.setItem(RESUME_KEY, this.resume); else sessionStorage.removeItem(RESUME_KEY);
-    } catch {
-      // Storage disabled: the key lives as long as the page.
-    }
+    if (this.url.mode === 'user') writeStorage(RESUME_KEY, this.resume, () => sessionStorage);
   }
 
   // ---- connection ----
@@ -791,6 +777,23 @@ class App {
     } finally {
       form.querySelector('button[type=submit]').disabled = false;
     }
+  }
+}
+
+// Browser storage that may be disabled (privacy settings): then nothing is remembered.
+function readStorage(key, storage = () => localStorage) {
+  try {
+    return storage().getItem(key) || '';
+  } catch {
+    return '';
+  }
+}
+
+function writeStorage(key, value, storage = () => localStorage) {
+  try {
+    if (value) storage().setItem(key, value); else storage().removeItem(key);
+  } catch {
+    // Not remembered.
   }
 }
 

@@ -26,8 +26,10 @@ export function describeExpiry(expires, nowMs = Date.now()) {
   if (!Number.isFinite(t)) return 'no expiry';
   const s = (t - nowMs) / 1000;
   if (s <= 0) return 'expired';
-  if (s < 3600) return `expires in ${Math.max(1, Math.round(s / 60))} min`;
-  if (s < 2 * 86400) return `expires in ${Math.round(s / 3600)} h`;
+  const minutes = Math.max(1, Math.round(s / 60));
+  if (minutes < 60) return `expires in ${minutes} min`;
+  const hours = Math.round(s / 3600);
+  if (hours < 48) return `expires in ${hours} h`;
   return `expires in ${Math.round(s / 86400)} d`;
 }
 
@@ -172,6 +174,8 @@ export class SharePanel {
       demote: ['Make viewer', `Make ${p.name} a viewer (view only)`],
       kick: ['Remove', `Remove ${p.name} from the session`],
     };
+    const actions = document.createElement('span');
+    actions.className = 'actions';
     for (const action of this.model.actionsFor(p)) {
       const b = document.createElement('button');
       b.className = `action ${action}`;
@@ -180,8 +184,9 @@ export class SharePanel {
       b.title = labels[action][1];
       b.setAttribute('aria-label', labels[action][1]);
       b.addEventListener('click', () => this.h.send(this.model.actionMessage(action, p)));
-      li.appendChild(b);
+      actions.appendChild(b);
     }
+    if (actions.childElementCount) li.appendChild(actions);
     return li;
   }
 

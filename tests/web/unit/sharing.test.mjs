@@ -81,6 +81,8 @@ test('share links: checked, expiry described, tokens abbreviated', () => {
   assert.equal(describeExpiry('', now), 'no expiry');
   assert.equal(describeExpiry('2026-11-25T10:30:00Z', now), 'expires in 30 min');
   assert.equal(describeExpiry('2026-11-25T10:00:10Z', now), 'expires in 1 min');
+  assert.equal(describeExpiry('2026-11-25T10:59:55Z', now), 'expires in 1 h');  // not "60 min"
+  assert.equal(describeExpiry('2026-11-25T10:59:00Z', now), 'expires in 59 min');
   assert.equal(describeExpiry('2026-11-25T13:00:00Z', now), 'expires in 3 h');
   assert.equal(describeExpiry('2026-12-02T10:00:00Z', now), 'expires in 7 d');
   assert.equal(describeExpiry('2026-11-25T09:00:00Z', now), 'expired');
