@@ -131,6 +131,13 @@ class App {
       onFrame: (f) => this.frame(f),
       onStatus: (s) => {
         this.status.connection(s);
+        if (s.state === 'ended') {
+          // Left the session for good (revoked, removed): nothing here drives or lists anyone.
+          this.participants.update([]);
+          this.participants.setOwnRole(null);
+          this.sharePanel.setShares([]);
+          this.applyRole();
+        }
         if (s.state !== 'open') {
           this.screenshots.failAll('the connection was lost');
           for (const id of ['3d', 'x', 'y', 'z']) this.views[id].shownVersion = 0;
@@ -196,8 +203,16 @@ class App {
     writeStorage(NAME_KEY, cleanName(name));
   }
 
+  // The resume key kept by this tab: used when the page was reloaded (the same session comes
+  // back); a page opened afresh, even at the same address, starts a session of its own.
   loadResume() {
-    return this.url.mode === 'user' ? readStorage(RESUME_KEY, () => sessionStorage) : '';
+    if (this.url.mode !== 'user') return '';
+    const nav = performance.getEntriesByType?.('navigation')?.[0];
+    if (nav?.type !== 'reload') {
+      writeStorage(RESUME_KEY, '', () => sessionStorage);
+      return '';
+    }
+    return readStorage(RESUME_KEY, () => sessionStorage);
   }
 
   // The owner's resume key (`welcome`): reattaches this tab to its session after a reconnect or a
@@ -307,6 +322,8 @@ class App {
           this.storeResume('');
           break;
         }
+        // A fatal error closes the connection: the banner says why (closeOutcome).
+        if (msg.fatal === true) break;
         this.status.error(`${msg.request ? msg.request + ': ' : ''}${msg.message}`);
         break;
       default:
@@ -464,6 +481,7 @@ class App {
     banner.hidden = !text;
     const n = this.participants.list.length;
     document.querySelector('#share-button .participant-count').textContent = n > 1 ? ` · ${n}` : '';
+    document.querySelector('#session-panel .copy-view-link').disabled = role === null;
     this.sharePanel.setParticipants(this.participants);
   }
 
