@@ -17,6 +17,7 @@
 #include "app/api_routes.h"
 #include "app/commands.h"
 #include "app/flags.h"
+#include "app/link_authenticator.h"
 #include "app/serve_settings.h"
 #include "app/volume_options.h"
 #include "app/ws_bridge.h"
@@ -26,7 +27,6 @@
 #include "encode/jpeg_encoder.h"
 #include "net/auth.h"
 #include "net/server.h"
-#include "protocol/query_string.h"
 #include "render/device.h"
 #include "render/render_service.h"
 #include "session/dataset_hub.h"
@@ -67,21 +67,22 @@ int WaitForStopSignal(const sigset_t& set) {
   return signal;
 }
 
-// What a WebSocket connection authenticated as: a share link (`share=`), a view link (`view=`)
-// or the user token.
+// What a WebSocket connection authenticated as (the Authenticator's Principal): a user, a share
+// link or a view link.
 WsCredential ConnectionCredential(const net::WsConnectInfo& info) {
   WsCredential credential;
-  credential.user = "owner";
-  auto parameters = protocol::ParseQueryString(info.query);
-  if (!parameters.ok()) return credential;
-  for (const auto& p : *parameters) {
-    if (p.name == "share") {
+  credential.user = info.principal.user;
+  credential.credential = info.principal.credential;
+  switch (info.principal.kind) {
+    case net::Principal::Kind::kUser:
+      credential.kind = WsCredential::Kind::kUser;
+      break;
+    case net::Principal::Kind::kShare:
       credential.kind = WsCredential::Kind::kShare;
-      credential.credential = p.value;
-    } else if (p.name == "view" && credential.kind != WsCredential::Kind::kShare) {
+      break;
+    case net::Principal::Kind::kView:
       credential.kind = WsCredential::Kind::kView;
-      credential.credential = p.value;
-    }
+      break;
   }
   return credential;
 }
@@ -185,7 +186,9 @@ int RunServe(std::span<const std::string> args) {
   server_options.bind_address = settings->bind;
   server_options.port = settings->port;
   server_options.io_threads = settings->io_threads;
-  server_options.authenticator = std::make_shared<net::TokenAuthenticator>(settings->token);
+  // User tokens, and the share and view links this server handed out.
+  server_options.authenticator = std::make_shared<LinkAuthenticator>(
+      std::make_shared<net::TokenAuthenticator>(settings->token), sessions.get(), views->get());
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
   ApiRoutesOptions routes_options;

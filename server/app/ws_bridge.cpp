@@ -39,7 +39,8 @@ class SessionHandler : public net::WsHandler {
         Refuse(4001, "share link revoked", "this share link is not valid (revoked or expired)");
         return;
       }
-      Join(share->session, {share->role, "", credential_.credential});
+      // A signed-in user following the link is shown by name; a guest by role and number.
+      Join(share->session, {share->role, credential_.user, credential_.credential});
       return;
     }
     auto created = registry->Create(*context_, options_);
