@@ -11,16 +11,13 @@
 
 import {after, before, test} from 'node:test';
 import assert from 'node:assert/strict';
-import {spawn, execFileSync} from 'node:child_process';
+import {execFileSync} from 'node:child_process';
 import fs from 'node:fs';
 import os from 'node:os';
 import path from 'node:path';
-import {createRequire} from 'node:module';
+import * as h from './browser_helpers.mjs';
 
-// playwright-core from the build folder's node_modules (ctest) or the one beside this script.
-const require = createRequire(process.env.OCTOSCOPE_NODE_MODULES ?
-  path.join(process.env.OCTOSCOPE_NODE_MODULES, '..', 'index.js') : import.meta.url);
-const {chromium} = require('playwright-core');
+const {chromium} = h.loadPlaywright();
 
 const BINARY = process.env.OCTOSCOPE_BINARY;
 const WEB = process.env.OCTOSCOPE_WEB;
@@ -45,43 +42,12 @@ let expectConnectionErrors = false;
 // ---- the server ----
 
 function startServer(port = 0, demo = true) {
-  const args = ['serve', '--data', dataDir, '--cache', cacheDir, '--port', String(port), '--token', TOKEN,
+  const args = ['--data', dataDir, '--cache', cacheDir, '--port', String(port), '--token', TOKEN,
     '--web', WEB, '--ram-mb', '512'];
   if (demo) args.push('--demo', '--demo-size', '96,96,48', '--demo-rate', '6');
-  const proc = spawn(BINARY, args, {stdio: ['ignore', 'pipe', 'pipe']});
-  let stderr = '';
-  proc.stderr.on('data', (d) => {
-    stderr += d;
-    fs.appendFileSync(path.join(ARTIFACTS, 'serve.log'), d);
-  });
-  return new Promise((resolve, reject) => {
-    let out = '';
-    const timer = setTimeout(() => reject(new Error(`serve printed no URL in 60 s: ${stderr}`)), 60000);
-    proc.stdout.on('data', (d) => {
-      out += d;
-      const line = out.split('\n')[0];
-      if (out.includes('\n')) {
-        clearTimeout(timer);
-        const url = new URL(line.trim());
-        resolve({proc, url: line.trim(), port: Number(url.port), get stderr() { return stderr; }});
-      }
-    });
-    proc.on('exit', (code) => {
-      clearTimeout(timer);
-      reject(new Error(`serve exited with ${code}: ${stderr}`));
-    });
-  });
+  return h.startServer(BINARY, args, path.join(ARTIFACTS, 'serve.log'));
 }
-
-function stopServer(s) {
-  return new Promise((resolve) => {
-    if (!s || s.proc.exitCode !== null) return resolve(s?.proc.exitCode);
-    s.proc.removeAllListeners('exit');
-    s.proc.on('exit', (code) => resolve(code));
-    s.proc.kill('SIGTERM');
-    setTimeout(() => s.proc.kill('SIGKILL'), 20000).unref();
-  });
-}
+const stopServer = h.stopServer;
 
 // ---- data ----
 
@@ -106,71 +72,14 @@ function writeDim12BitScan() {
     endianness: 'little', layout: 'planar', header_bytes: 0, spacing: [0.5, 0.5, 1]}));
 }
 
-// ---- page helpers ----
+// ---- page helpers (on the current page) ----
 
-async function shot(name) {
-  await page.screenshot({path: path.join(ARTIFACTS, `${name}.png`)});
-  for (const v of ['3d', 'x', 'y', 'z']) {
-    const el = page.locator(`.view[data-view="${v}"]`);
-    if (await el.isVisible()) await el.screenshot({path: path.join(ARTIFACTS, `${name}-view-${v}.png`)});
-  }
-}
-
-const frameOf = (view) => page.evaluate((v) => window.octoscope.frame(v), view);
-
-// Waits until `view` shows a final frame newer than `afterVersion` and nothing newer arrived for
-// `quietMs`. Returns its header.
-async function waitForFinal(view, afterVersion = 0, timeoutMs = 90000, quietMs = 700, afterFrame = 0) {
-  const start = Date.now();
-  let last = null, since = 0;
-  while (Date.now() - start < timeoutMs) {
-    const f = await frameOf(view);
-    const key = f ? `${f.frameId}` : '';
-    if (key !== last) {
-      last = key;
-      since = Date.now();
-    }
-    if (f && f.tier === 'final' && f.stateVersion > afterVersion && f.frameId > afterFrame &&
-        Date.now() - since >= quietMs) {
-      return f;
-    }
-    await page.waitForTimeout(100);
-  }
-  throw new Error(`no settled final frame of view ${view} after state ${afterVersion}: last ${JSON.stringify(await frameOf(view))}`);
-}
-
-// Canvas statistics computed in the page: mean luminance, fraction of non-black pixels; and
-// snapshots kept under a name for later comparison.
-async function canvasStats(view, snapshot) {
-  return page.evaluate(([v, name]) => {
-    const c = document.querySelector(`.view[data-view="${v}"] canvas.image`);
-    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-    let sum = 0, lit = 0;
-    for (let i = 0; i < d.length; i += 4) {
-      const l = 0.2126 * d[i] + 0.7152 * d[i + 1] + 0.0722 * d[i + 2];
-      sum += l;
-      if (l > 8) ++lit;
-    }
-    if (name) (window.__snaps ??= {})[name] = {w: c.width, h: c.height, data: d};
-    const n = d.length / 4;
-    return {mean: sum / n, lit: lit / n, width: c.width, height: c.height};
-  }, [view, snapshot ?? null]);
-}
-
-// Mean absolute difference (0..255) between a snapshot and the canvas now.
-async function differenceFrom(view, snapshot) {
-  return page.evaluate(([v, name]) => {
-    const c = document.querySelector(`.view[data-view="${v}"] canvas.image`);
-    const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-    const s = window.__snaps[name];
-    if (s.w !== c.width || s.h !== c.height) return 255;
-    let diff = 0;
-    for (let i = 0; i < d.length; i += 4) {
-      diff += Math.abs(d[i] - s.data[i]) + Math.abs(d[i + 1] - s.data[i + 1]) + Math.abs(d[i + 2] - s.data[i + 2]);
-    }
-    return diff / (d.length / 4 * 3);
-  }, [view, snapshot]);
-}
+const shot = (name) => h.shot(page, ARTIFACTS, name);
+const frameOf = (view) => h.frameOf(page, view);
+const waitForFinal = (...args) => h.waitForFinal(page, ...args);
+const canvasStats = (...args) => h.canvasStats(page, ...args);
+const differenceFrom = (...args) => h.differenceFrom(page, ...args);
+const waitFor = h.waitFor;
 
 // Centroid of the overlay pixels of one colour (the plane outlines in the 3-D view).
 async function overlayCentroid(view, rgb) {
@@ -213,16 +122,6 @@ async function openPage(query, options = {}) {
   });
   await p.goto(`http://127.0.0.1:${server.port}/?token=${TOKEN}${query}`);
   return p;
-}
-
-async function waitFor(fn, what, timeoutMs = 60000) {
-  const start = Date.now();
-  for (;;) {
-    const v = await fn();
-    if (v) return v;
-    if (Date.now() - start > timeoutMs) throw new Error(`timed out waiting for ${what}`);
-    await new Promise((r) => setTimeout(r, 150));
-  }
 }
 
 // ---- setup ----

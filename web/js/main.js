@@ -1,9 +1,13 @@
 // The Octoscope viewer page: wires the connection, the four views, the controls and panels
 // together and owns the client's copy of the session state (camera, parameters, slices,
 // layout), which it sends in full with `open` after a reconnect so the view comes back as it was.
+// In a shared session it follows the state the others drive (`state` events update every panel)
+// and, as a viewer, keeps every driving control read-only.
 
-import {apiUrl, readUrlState, webSocketUrl, withDataset} from './url_state.js';
+import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset} from './url_state.js';
 import {Connection} from './connection.js';
+import {cleanName, Participants} from './participants.js';
+import {SharePanel} from './share_panel.js';
 import {AXIS_COLORS, Layout, View, VIEW_IDS} from './views.js';
 import {CameraControls} from './camera_controls.js';
 import {SliceControls} from './slice_controls.js';
@@ -16,26 +20,41 @@ import {RenderPanel} from './render_panel.js';
 import {DatasetPicker} from './dataset_picker.js';
 import {Status} from './status.js';
 import {saveBlob, screenshotBlob, Screenshots} from './screenshot.js';
-import {actionFor, fillHelp} from './shortcuts.js';
+import {actionFor, drivesView, fillHelp} from './shortcuts.js';
 
 const MODES = ['dvr', 'mip', 'minip'];
 const HISTOGRAM_REFRESH_MS = 2000;
+const VIEW_ONLY_HINT_MS = 4000;
+const RESUME_KEY = 'octoscope.resume';
+const NAME_KEY = 'octoscope.name';
+const LOSSLESS_KEY = 'octoscope.lossless';
 
 class App {
   constructor() {
     const url = readUrlState(location.href);
+    this.url = url;
     this.token = url.token;
-    this.datasetId = url.dataset;
+    // A share link joins someone else's session: its dataset is theirs, not the address's.
+    this.datasetId = url.mode === 'user' ? url.dataset : '';
+    this.participants = new Participants();
+    // A page that opens its own session owns it; a share link's role comes with `welcome`.
+    if (url.mode !== 'share') this.participants.setOwnRole('owner');
+    this.resume = this.loadResume();
+    this.reconnecting = false;
+    this.lastHint = 0;
     this.dataset = null;
     this.histogram = null;
     this.state = null;  // {camera, params, slices: {position_um}, layout}
     this.cam = null;    // Orbit camera of the 3-D view.
     this.version = 0;
-    this.quality = {lod_bias: 0, lossless_final: false};
+    // Lossless finals are this browser's preference: on from the first frame of every page.
+    this.quality = {lod_bias: 0, lossless_final: readStorage(LOSSLESS_KEY) === '1'};
+    document.querySelector('#lossless').checked = this.quality.lossless_final;
     this.pending = {};  // Messages waiting for the next animation frame, by type.
     this.interactions = new Set();
     this.hovered = null;
     this.lastHistogramFetch = 0;
+    this.serverErrors = [];  // The server's `error` events (tests, console).
 
     this.status = new Status(document);
     this.views = {};
@@ -79,11 +98,13 @@ class App {
       onProjection: (p) => this.setProjection(p),
       onLodBias: (b, interactive) => {
         this.quality.lod_bias = b;
-        this.interaction('lod', interactive);
+        // The bias is this page's own (`quality`); only a driver's slide marks an interaction.
+        if (this.canDrive) this.interaction('lod', interactive);
         this.queue({type: 'quality', lod_bias: b});
       },
       onLossless: (on) => {
         this.quality.lossless_final = on;
+        writeStorage(LOSSLESS_KEY, on ? '1' : '');
         this.connection.send({type: 'quality', lossless_final: on});
       },
       onClipPlanes: (docs, interactive) => {
@@ -94,13 +115,29 @@ class App {
     this.picker = new DatasetPicker(document.querySelector('#picker'), () => this.fetchJson('api/datasets'),
         (id) => this.openDataset(id));
     this.screenshots = new Screenshots((m) => this.connection.send(m));
+    this.sharePanel = new SharePanel(document.querySelector('#session-panel'), {
+      send: (m) => this.connection.send(m),
+      fallbackUrl: (kind, secret) => linkUrl(location.href, kind, secret),
+      storedName: () => this.displayName(),
+      onName: (name) => this.setDisplayName(name),
+    });
     this.bindToolbar();
-    this.connection = new Connection(webSocketUrl(location.href, this.token), {
+    this.applyRole();
+    this.connection = new Connection(webSocketUrl(location.href, credentialParams(url)), {
       onOpen: (re) => this.connected(re),
+      helloFields: () => this.helloFields(),
+      probe: () => this.probeCredential(),
       onEvent: (m) => this.event(m),
       onFrame: (f) => this.frame(f),
       onStatus: (s) => {
         this.status.connection(s);
+        if (s.state === 'ended') {
+          // Left the session for good (revoked, removed): nothing here drives or lists anyone.
+          this.participants.update([]);
+          this.participants.setOwnRole(null);
+          this.sharePanel.setShares([]);
+          this.applyRole();
+        }
         if (s.state !== 'open') {
           this.screenshots.failAll('the connection was lost');
           for (const id of ['3d', 'x', 'y', 'z']) this.views[id].shownVersion = 0;
@@ -108,7 +145,7 @@ class App {
       },
       onPong: (rtt) => this.status.pong(rtt),
     });
-    if (!this.token) {
+    if (url.mode === 'user' && !this.token) {
       this.status.error('This page needs the access token: open the URL that `octoscope serve` printed.');
     }
     this.connection.connect();
@@ -118,34 +155,114 @@ class App {
     return volumeExtent(this.dataset);
   }
 
-  async fetchJson(path) {
-    const r = await fetch(apiUrl(location.href, path), {
-      headers: this.token ? {Authorization: `Bearer ${this.token}`} : {},
+  // A user's token goes in a header (kept out of server logs); a share or view link's credential
+  // is the query parameter the server knows it by.
+  request(path) {
+    const user = this.url.mode === 'user';
+    return fetch(apiUrl(location.href, path, user ? {} : credentialParams(this.url)), {
+      headers: user && this.token ? {Authorization: `Bearer ${this.token}`} : {},
       cache: 'no-store',
     });
+  }
+
+  async fetchJson(path) {
+    const r = await this.request(path);
     const body = await r.json().catch(() => ({}));
     if (!r.ok) throw new Error(body.error || `HTTP ${r.status}`);
     return body;
   }
 
+  // Asked before each reconnect: null while the server is away or accepts this page's
+  // credential; a sentence when it refuses it (a revoked or expired link, an expired token).
+  async probeCredential() {
+    const r = await this.request('api/datasets');
+    if (r.status !== 401) return null;
+    const body = await r.json().catch(() => ({}));
+    if (this.url.mode === 'share') return 'This share link no longer works: the owner revoked it, or it expired.';
+    if (this.url.mode === 'view') return 'This view link is not known to the server.';
+    if (body.error === 'token expired') return 'Your access token has expired: ask the administrator for a new one.';
+    return 'The server refused the access token: open the URL that `octoscope serve` printed.';
+  }
+
+  // `hello`'s optional fields: the name others see, and the owner's resume key (only a user
+  // token may reattach; a view link's page forks the link again and restores its own state).
+  helloFields() {
+    const f = {};
+    this.sentResume = this.url.mode === 'user' && this.token ? this.resume : '';
+    if (this.sentResume) f.resume = this.sentResume;
+    const name = this.displayName();
+    if (name) f.name = name;
+    return f;
+  }
+
+  displayName() {
+    return cleanName(readStorage(NAME_KEY));
+  }
+
+  setDisplayName(name) {
+    writeStorage(NAME_KEY, cleanName(name));
+  }
+
+  // The resume key kept by this tab: used when the page was reloaded (the same session comes
+  // back); a page opened afresh, even at the same address, starts a session of its own.
+  loadResume() {
+    if (this.url.mode !== 'user') return '';
+    const nav = performance.getEntriesByType?.('navigation')?.[0];
+    if (nav?.type !== 'reload') {
+      writeStorage(RESUME_KEY, '', () => sessionStorage);
+      return '';
+    }
+    return readStorage(RESUME_KEY, () => sessionStorage);
+  }
+
+  // The owner's resume key (`welcome`): reattaches this tab to its session after a reconnect or a
+  // reload, so its share links and participants stay.
+  storeResume(key) {
+    this.resume = typeof key === 'string' ? key : '';
+    if (this.url.mode === 'user') writeStorage(RESUME_KEY, this.resume, () => sessionStorage);
+  }
+
   // ---- connection ----
 
   connected(reconnect) {
+    this.reconnecting = reconnect;
+    // A view link's page forks the link again (its `opened` may come before `welcome`): put back
+    // what this page had changed since.
+    if (this.url.mode === 'view') this.restoreAfterOpen = reconnect && this.state ? this.stateDocument() : null;
     this.connection.send({type: 'quality', ...this.quality});
     for (const v of Object.values(this.views)) {
       v.resize();
       const m = v.viewportMessage(true);
       if (m) this.connection.send(m);
     }
+  }
+
+  // `welcome`: this page's role and session. The server itself sends `opened` to a share
+  // participant (the session's dataset and state), to a view link's page (the link's state) and
+  // to an owner it reattached (its `resume` key was accepted); any other page opens its dataset.
+  welcome(msg) {
+    this.session = msg.session;
+    this.participantId = msg.participant;
+    if (msg.role) this.participants.setOwnRole(msg.role);
+    if (msg.role === 'owner' && typeof msg.resume === 'string') this.storeResume(msg.resume);
+    const resumed = Boolean(this.sentResume) && msg.resume === this.sentResume;
+    this.sentResume = '';
+    this.applyRole();
+    if (this.url.mode !== 'user' || resumed) return;
+    this.sendOpen(this.reconnecting);
+  }
+
+  stateDocument() {
+    this.flushPending();
+    return {camera: toCameraDocument(this.cam, this.extent()), params: this.state.params,
+      slices: {position_um: this.state.slices.position_um}, layout: {maximized: this.layout.maximized}};
+  }
+
+  sendOpen(reconnect) {
     if (this.datasetId) {
       const msg = {type: 'open', dataset: this.datasetId};
       // After a reconnect the view comes back exactly as it was.
-      if (reconnect && this.state && this.dataset?.id === this.datasetId) {
-        this.flushPending();
-        msg.state = {camera: toCameraDocument(this.cam, this.extent()), params: this.state.params,
-          slices: {position_um: this.state.slices.position_um},
-          layout: {maximized: this.layout.maximized}};
-      }
+      if (reconnect && this.state && this.dataset?.id === this.datasetId) msg.state = this.stateDocument();
       this.connection.send(msg);
     } else {
       this.picker.open();
@@ -155,7 +272,26 @@ class App {
   event(msg) {
     switch (msg.type) {
       case 'welcome':
-        this.session = msg.session;
+        this.welcome(msg);
+        break;
+      case 'participants':
+        this.participants.update(msg.participants);
+        this.applyRole();
+        break;
+      case 'role':
+        this.participants.setOwnRole(msg.role);
+        this.applyRole();
+        break;
+      case 'shares':
+        this.sharePanel.setShares(msg.shares);
+        break;
+      case 'share_created':
+        this.sharePanel.showLink(msg.role, msg.url || linkUrl(location.href, 'share', msg.token));
+        window.octoscope.lastLink = {kind: msg.role, url: msg.url, token: msg.token};
+        break;
+      case 'view_saved':
+        this.sharePanel.showLink('view', msg.url || linkUrl(location.href, 'view', msg.id));
+        window.octoscope.lastLink = {kind: 'view', url: msg.url, id: msg.id};
         break;
       case 'opened':
         this.opened(msg);
@@ -179,6 +315,15 @@ class App {
         break;
       case 'error':
         console.warn(`octoscope server: ${msg.request ? msg.request + ': ' : ''}${msg.message}`);
+        this.serverErrors.push(msg);
+        // A resume key the server no longer knows (it restarted, the session was released): the
+        // page simply opens a new session, nothing for the user to act on.
+        if (msg.request === 'hello' && /resume/i.test(msg.message)) {
+          this.storeResume('');
+          break;
+        }
+        // A fatal error closes the connection: the banner says why (closeOutcome).
+        if (msg.fatal === true) break;
         this.status.error(`${msg.request ? msg.request + ': ' : ''}${msg.message}`);
         break;
       default:
@@ -203,11 +348,26 @@ class App {
     if (first) for (const v of Object.values(this.views)) v.clear();
     this.serverState(msg.state, msg.version, true);
     this.refreshHistogram(true);
+    // A reattached session may show another dataset than the address named.
+    if (this.url.mode === 'user' && readUrlState(location.href).dataset !== this.datasetId) {
+      history.replaceState(null, '', withDataset(location.href, this.datasetId));
+    }
+    const restore = this.restoreAfterOpen;
+    this.restoreAfterOpen = null;
+    if (restore && this.canDrive) {
+      this.connection.send({type: 'camera', camera: restore.camera});
+      this.connection.send({type: 'params', params: restore.params});
+      this.connection.send({type: 'slices', position_um: restore.slices.position_um});
+      this.serverState({...this.state, ...restore}, this.version, true);
+    }
   }
 
+  // The session's state from the server: after `open`/join (full) or when someone else changed
+  // it (a `state` event): every panel follows, except the layout, which each participant keeps.
   serverState(state, version, full = false) {
     this.version = version;
     const rebuild = full || !this.state;
+    if (!full && this.state?.layout) state = {...state, layout: this.state.layout};
     this.state = state;
     if (!this.interactions.has('3d')) this.cam = fromCameraDocument(state.camera, this.extent());
     this.renderPanel.setMode(state.params.mode);
@@ -219,7 +379,7 @@ class App {
       this.channels.update(state.params);
     }
     const m = state.layout?.maximized ?? null;
-    if (m !== this.layout.maximized) this.layout.set(m);
+    if (full && m !== this.layout.maximized) this.layout.set(m);
     this.updateSliceSliders();
     this.drawOverlays();
   }
@@ -281,7 +441,55 @@ class App {
     for (const msg of Object.values(pending)) this.connection.send(msg);
   }
 
+  get canDrive() {
+    return this.participants.canDrive;
+  }
+
+  // A viewer tried to drive: say so, at most every few seconds.
+  viewOnlyHint() {
+    const now = performance.now();
+    if (now - this.lastHint < VIEW_ONLY_HINT_MS) return;
+    this.lastHint = now;
+    const f = this.participants.followed;
+    this.status.notice(f && !f.you ? `View only: ${f.name} drives this view.` : 'View only.');
+  }
+
+  // Driving controls are read-only (disabled, marked) unless this page may drive; a viewer sees
+  // whom it follows.
+  applyRole() {
+    const drive = this.canDrive;
+    const role = this.participants.role;
+    document.body.dataset.role = role ?? 'none';
+    document.body.classList.toggle('read-only', !drive);
+    for (const el of document.querySelectorAll('.drives')) el.disabled = !drive;
+    // A share participant never opens another dataset; nor does a viewer.
+    document.querySelector('#open-dataset').disabled = !drive || this.url.mode === 'share';
+    for (const id of ['x', 'y', 'z']) this.views[id].el.querySelector('.slice-slider').disabled = !drive;
+    for (const v of Object.values(this.views)) {
+      const box = v.el.querySelector('.canvas-box');
+      if (drive) box.removeAttribute('aria-disabled'); else box.setAttribute('aria-disabled', 'true');
+      box.title = drive ? '' : 'View only';
+    }
+    if (!drive) {
+      // Demoted mid-gesture: what was queued is no longer ours to send.
+      this.interactions.clear();
+      for (const k of Object.keys(this.pending)) if (!k.startsWith('viewport') && k !== 'quality') delete this.pending[k];
+    }
+    const banner = document.querySelector('#follow-banner');
+    const text = this.participants.bannerText();
+    banner.textContent = text;
+    banner.hidden = !text;
+    const n = this.participants.list.length;
+    document.querySelector('#share-button .participant-count').textContent = n > 1 ? ` · ${n}` : '';
+    document.querySelector('#session-panel .copy-view-link').disabled = role === null;
+    this.sharePanel.setParticipants(this.participants);
+  }
+
   interaction(source, active) {
+    if (!this.canDrive) {
+      if (active) this.viewOnlyHint();
+      return;
+    }
     const before = this.interactions.size > 0;
     if (active) this.interactions.add(source); else this.interactions.delete(source);
     const after = this.interactions.size > 0;
@@ -292,7 +500,7 @@ class App {
   }
 
   setCamera(cam) {
-    if (!this.state) return;
+    if (!this.state || !this.canDrive) return;
     this.cam = cam;
     this.state.camera = toCameraDocument(cam, this.extent());
     this.queue({type: 'camera', camera: this.state.camera});
@@ -315,7 +523,7 @@ class App {
   }
 
   setSlices(p) {
-    if (!this.state) return;
+    if (!this.state || !this.canDrive) return;
     const e = this.extent();
     this.state.slices.position_um = p.map((v, a) => Math.min(Math.max(v, 0), e[a]));
     this.queue({type: 'slices', position_um: this.state.slices.position_um});
@@ -325,6 +533,12 @@ class App {
 
   changeParams(doc) {
     if (!this.state) return;
+    if (!this.canDrive) {
+      // A control that changed itself (a radio button) goes back to the session's value.
+      this.renderPanel.setMode(this.state.params.mode);
+      this.viewOnlyHint();
+      return;
+    }
     Object.assign(this.state.params, doc);
     this.channels.update(this.state.params);
     this.renderPanel.setMode(this.state.params.mode);
@@ -334,6 +548,11 @@ class App {
 
   changeChannel(i, doc, interactive) {
     if (!this.state) return;
+    if (!this.canDrive) {
+      this.channels.update(this.state.params);
+      this.viewOnlyHint();
+      return;
+    }
     const ch = this.state.params.channels[i];
     for (const [k, v] of Object.entries(doc)) {
       if (k === 'transform') {
@@ -365,7 +584,7 @@ class App {
   // ---- datasets ----
 
   openDataset(id) {
-    if (!id) return;
+    if (!id || !this.canDrive || this.url.mode === 'share') return;
     this.datasetId = id;
     this.state = null;
     this.dataset = null;
@@ -449,6 +668,11 @@ class App {
   bindToolbar() {
     const $ = (s) => document.querySelector(s);
     $('#open-dataset').addEventListener('click', () => this.picker.open());
+    $('#share-button').addEventListener('click', () => {
+      const panel = $('#session-panel');
+      panel.scrollIntoView({block: 'start', behavior: 'smooth'});
+      panel.focus({preventScroll: true});
+    });
     $('#reset-view').addEventListener('click', () => this.preset('iso'));
     document.querySelectorAll('[data-preset]').forEach((b) =>
       b.addEventListener('click', () => this.preset(b.dataset.preset)));
@@ -488,6 +712,11 @@ class App {
     const action = actionFor(e);
     if (!action) return;
     const [name, arg] = action.split(':');
+    if (drivesView(action) && (!this.canDrive || (name === 'picker' && this.url.mode === 'share'))) {
+      this.viewOnlyHint();
+      e.preventDefault();
+      return;
+    }
     switch (name) {
       case 'help': this.toggleHelp(); break;
       case 'picker': this.picker.open(); break;
@@ -569,6 +798,23 @@ class App {
   }
 }
 
+// Browser storage that may be disabled (privacy settings): then nothing is remembered.
+function readStorage(key, storage = () => localStorage) {
+  try {
+    return storage().getItem(key) || '';
+  } catch {
+    return '';
+  }
+}
+
+function writeStorage(key, value, storage = () => localStorage) {
+  try {
+    if (value) storage().setItem(key, value); else storage().removeItem(key);
+  } catch {
+    // Not remembered.
+  }
+}
+
 const app = new App();
 // A small read-only window onto the page for automation (the browser tests) and the console.
 window.octoscope = {
@@ -581,6 +827,20 @@ window.octoscope = {
     const f = app.views[view].lastFrame;
     return f ? {...f, image: undefined} : null;
   },
+  // The image bytes of the frame on screen, base64 (tests compare pixels across pages).
+  frameImage(view) {
+    const f = app.views[view].lastFrame;
+    if (!f) return null;
+    let s = '';
+    for (let i = 0; i < f.image.length; i += 0x8000) s += String.fromCharCode(...f.image.subarray(i, i + 0x8000));
+    return {mime: f.mime, base64: btoa(s)};
+  },
+  get role() { return app.participants.role; },
+  get participants() { return app.participants.list.map((p) => ({...p})); },
+  get shares() { return app.sharePanel.shares.map((s) => ({...s})); },
+  get serverErrors() { return app.serverErrors.slice(); },
+  get session() { return app.session; },
   dropConnection() { app.connection.drop(); },
   lastScreenshot: null,
+  lastLink: null,
 };

@@ -1,23 +1,24 @@
 // Keyboard shortcuts: one table that both dispatches keys and fills the help overlay ("?"), so
 // the overlay never lists a key that does nothing. Keys typed into form fields are left alone.
+// Entries marked `drives` change the shared view: a viewer of a shared session cannot use them.
 
 export const SHORTCUTS = [
   {keys: ['?', 'h'], label: 'Show / hide this help', action: 'help'},
-  {keys: ['o'], label: 'Open a dataset (picker)', action: 'picker'},
-  {keys: ['r'], label: 'Reset the view (iso, whole volume)', action: 'reset'},
-  {keys: ['i'], label: 'Iso view', action: 'preset:iso'},
-  {keys: ['x', 'X'], label: 'View along +x / −x (shift)', action: 'preset:x'},
-  {keys: ['y', 'Y'], label: 'View along +y / −y (shift)', action: 'preset:y'},
-  {keys: ['z', 'Z'], label: 'View along +z / −z (shift)', action: 'preset:z'},
-  {keys: ['m'], label: 'Cycle DVR → MIP → MinIP', action: 'mode'},
-  {keys: ['p'], label: 'Orthographic / perspective', action: 'projection'},
-  {keys: ['a'], label: 'Auto-contrast every channel', action: 'auto'},
-  {keys: ['1', '2', '3', '4', '5', '6', '7', '8', '9'], label: 'Show / hide channel n', action: 'channel'},
+  {keys: ['o'], label: 'Open a dataset (picker)', action: 'picker', drives: true},
+  {keys: ['r'], label: 'Reset the view (iso, whole volume)', action: 'reset', drives: true},
+  {keys: ['i'], label: 'Iso view', action: 'preset:iso', drives: true},
+  {keys: ['x', 'X'], label: 'View along +x / −x (shift)', action: 'preset:x', drives: true},
+  {keys: ['y', 'Y'], label: 'View along +y / −y (shift)', action: 'preset:y', drives: true},
+  {keys: ['z', 'Z'], label: 'View along +z / −z (shift)', action: 'preset:z', drives: true},
+  {keys: ['m'], label: 'Cycle DVR → MIP → MinIP', action: 'mode', drives: true},
+  {keys: ['p'], label: 'Orthographic / perspective', action: 'projection', drives: true},
+  {keys: ['a'], label: 'Auto-contrast every channel', action: 'auto', drives: true},
+  {keys: ['1', '2', '3', '4', '5', '6', '7', '8', '9'], label: 'Show / hide channel n', action: 'channel', drives: true},
   {keys: ['f'], label: 'Enlarge / restore the view under the pointer', action: 'enlarge'},
   {keys: ['Escape'], label: 'Restore the layout, close dialogs', action: 'escape'},
-  {keys: ['ArrowLeft', 'ArrowRight', 'ArrowUp', 'ArrowDown'], label: 'Orbit the 3-D view by 5°', action: 'orbit'},
-  {keys: ['+', '-'], label: 'Zoom the 3-D view in / out', action: 'zoom'},
-  {keys: ['PageUp', 'PageDown'], label: 'Move the slice under the pointer (shift: 10 voxels)', action: 'slice'},
+  {keys: ['ArrowLeft', 'ArrowRight', 'ArrowUp', 'ArrowDown'], label: 'Orbit the 3-D view by 5°', action: 'orbit', drives: true},
+  {keys: ['+', '-'], label: 'Zoom the 3-D view in / out', action: 'zoom', drives: true},
+  {keys: ['PageUp', 'PageDown'], label: 'Move the slice under the pointer (shift: 10 voxels)', action: 'slice', drives: true},
   {keys: ['s'], label: 'Screenshot', action: 'screenshot'},
   {keys: ['.'], label: 'Show / hide the stats overlay', action: 'stats'},
 ];
@@ -34,6 +35,11 @@ export const MOUSE_HELP = [
 
 const KEY_NAMES = {ArrowLeft: '←', ArrowRight: '→', ArrowUp: '↑', ArrowDown: '↓', Escape: 'Esc',
   PageUp: 'PgUp', PageDown: 'PgDn'};
+
+// Whether an action changes the shared view (camera, parameters, slices, dataset).
+export function drivesView(action) {
+  return SHORTCUTS.some((s) => s.action === action && s.drives === true);
+}
 
 // The action for a keyboard event, or null.
 export function actionFor(event) {

@@ -24,13 +24,22 @@ export class Status {
   connection({state, detail}) {
     document.body.dataset.connection = state;
     const labels = {connecting: 'Connecting…', open: 'Connected', reconnecting: 'Connection lost — reconnecting…',
-      failed: 'Disconnected'};
+      failed: 'Disconnected', ended: 'Left the session'};
     this.conn.textContent = labels[state] ?? state;
     this.conn.className = `conn ${state}`;
     this.conn.title = detail || '';
     const show = state !== 'open';
     this.banner.hidden = !show;
-    this.banner.textContent = show ? `${labels[state] ?? state}${detail ? ' (' + detail + ')' : ''}` : '';
+    // A session that ended (link revoked, removed, credential refused) says why in a sentence.
+    this.banner.textContent = !show ? '' : state === 'ended' && detail ? detail :
+      `${labels[state] ?? state}${detail ? ' (' + detail + ')' : ''}`;
+    this.banner.setAttribute('role', state === 'ended' || state === 'failed' ? 'alert' : 'status');
+  }
+
+  // A neutral, short-lived hint (e.g. "view only" when a viewer tries to drive).
+  notice(message) {
+    this.error(message);
+    this.toast.classList.add('notice');
   }
 
   dataset(d) {
@@ -80,6 +89,7 @@ export class Status {
   }
 
   error(message) {
+    this.toast.classList.remove('notice');
     this.toast.textContent = message;
     this.toast.hidden = false;
     clearTimeout(this.toastTimer);
