@@ -21,6 +21,7 @@
 #include <thread>
 #include <vector>
 
+#include "net/auth.h"
 #include "net/server.h"
 #include "protocol/ws_messages.h"
 #include "util/logger.h"
@@ -88,7 +89,7 @@ class NoApi : public octoscope::net::ApiHandler {
 double WebSocketSeconds(int frames, size_t bytes) {
   octoscope::NullLogger logger;
   octoscope::net::ServerOptions options;
-  options.token = "bench-token";
+  options.authenticator = std::make_shared<octoscope::net::TokenAuthenticator>("bench-token");
   options.max_ws_queue_bytes = size_t{1} << 30;
   auto server = octoscope::net::Server::Start(
       options, std::make_shared<NoApi>(),

@@ -3,7 +3,8 @@
 // run (tests/protocol/ws_fuzz_replay_test.cpp). Input format: byte 0 picks the target, the rest
 // is its input:
 //   0, 1 (mod 4): a client → server message (protocol::ParseClientMessage);
-//   2: a state document (ParseStateDocument) and the query of a slab upload (ParseSlabQuery);
+//   2: a state document (ParseStateDocument), a stored view link (ParseViewLink) and the query
+//      of a slab upload (ParseSlabQuery);
 //   3: a binary frame message (DecodeFrameHeader, as a native client reads it).
 // Parse errors are fine. What parses must respect the documented ranges; a violation is
 // returned as kInternal, the finding (as is a crash, hang, leak or sanitizer report).
@@ -69,8 +70,36 @@ inline Status CheckMessage(const protocol::ClientMessage& message) {
     return Expect(shot->scale == 1 || shot->scale == 2, "screenshot scale");
   }
   if (const auto* open = std::get_if<OpenMessage>(&message)) {
+    if (!open->view.empty()) {
+      return Expect(IsViewLinkId(open->view) && open->dataset.empty() && !open->state,
+                    "a view link opens alone");
+    }
     return Expect(!open->dataset.empty() && open->dataset.size() <= kMaxDatasetIdBytes,
                   "dataset id length");
+  }
+  if (const auto* hello = std::get_if<HelloMessage>(&message)) {
+    return Expect((hello->resume.empty() || IsHexKey(hello->resume)) &&
+                      hello->name.size() <= kMaxParticipantNameBytes,
+                  "hello resume key and name");
+  }
+  if (const auto* share = std::get_if<ShareCreateMessage>(&message)) {
+    return Expect(
+        share->role != Role::kOwner && (!share->ttl_s || (*share->ttl_s >= kMinShareTtlSeconds &&
+                                                          *share->ttl_s <= kMaxShareTtlSeconds)),
+        "share role and ttl");
+  }
+  if (const auto* revoke = std::get_if<ShareRevokeMessage>(&message)) {
+    return Expect(!revoke->token.empty() && revoke->token.size() <= kMaxShareTokenBytes,
+                  "share token length");
+  }
+  if (const auto* role = std::get_if<ParticipantRoleMessage>(&message)) {
+    return Expect(role->role != Role::kOwner && !role->participant.empty() &&
+                      role->participant.size() <= kMaxParticipantIdBytes,
+                  "participant role");
+  }
+  if (const auto* kick = std::get_if<KickMessage>(&message)) {
+    return Expect(!kick->participant.empty() && kick->participant.size() <= kMaxParticipantIdBytes,
+                  "kicked participant id");
   }
   return Status::Ok();
 }
@@ -92,6 +121,14 @@ inline Status WsMessageInput(std::span<const uint8_t> data) {
       return ws_fuzz_detail::Expect(MessageTypeName(*message) == type, "type reported");
     }
     case 2: {
+      // A stored view-link document (ViewStore reads them back strictly).
+      Result<ViewLink> link = ParseViewLink(text);
+      if (link.ok()) {
+        OCTO_RETURN_IF_ERROR(ws_fuzz_detail::Expect(
+            link->state.camera && link->state.params_json && link->state.slice_position_um &&
+                link->state.layout && !link->dataset.empty(),
+            "a view link holds the whole state"));
+      }
       Result<StateUpdate> state = ParseStateDocument(text);
       Result<SlabQuery> query = ParseSlabQuery(text);
       if (query.ok()) {
@@ -100,7 +137,7 @@ inline Status WsMessageInput(std::span<const uint8_t> data) {
                 query->channel >= 0 && query->channel < kMaxStreamChannels,
             "slab query ranges"));
       }
-      if (state.ok() || query.ok()) return Status::Ok();
+      if (state.ok() || query.ok() || link.ok()) return Status::Ok();
       return state.status();
     }
     default: {

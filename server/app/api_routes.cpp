@@ -9,6 +9,7 @@
 #include "protocol/api_json.h"
 #include "protocol/dataset_json.h"
 #include "protocol/query_string.h"
+#include "protocol/ws_messages.h"
 #include "volume/data_type.h"
 
 namespace octoscope::app {
@@ -167,6 +168,10 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
     if (method == "POST") return CreateStream(request, responder);
     return method_not_allowed("GET, POST");
   }
+  if (path.starts_with("/api/views/")) {
+    if (method != "GET") return method_not_allowed("GET");
+    return GetView(path.substr(std::string_view("/api/views/").size()), responder);
+  }
   std::string id, rest;
   if (!SplitDatasetPath(path, &id, &rest)) {
     return Respond(responder, HttpResponse::Error(404, "no such path"));
@@ -192,6 +197,30 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
   }
   Respond(responder,
           HttpResponse::Json(200, protocol::HistogramJson(dataset::DescribeHistogram(*dataset))));
+}
+
+void ApiRoutes::GetView(const std::string& id, const net::HttpResponder& responder) {
+  session::ViewStore* views = options_.views;
+  if (views == nullptr || !protocol::IsViewLinkId(id) || !views->Exists(id)) {
+    return Respond(responder, HttpResponse::Error(404, "no view link '" + id + "'"));
+  }
+  // The stored document is read (and checked) off the I/O thread.
+  uploads_->Submit(next_upload_.fetch_add(1), [views, id, responder] {
+    auto text = views->LoadText(id);
+    if (text.ok()) {
+      auto link = protocol::ParseViewLink(*text);
+      if (!link.ok()) {
+        text = CorruptError("view link " + id +
+                            " is not a valid view document: " + link.status().message());
+      }
+    }
+    if (!text.ok()) {
+      const int status = text.status().code() == StatusCode::kNotFound ? 404 : 500;
+      responder.Respond(HttpResponse::Error(status, text.status().message()));
+      return;
+    }
+    responder.Respond(HttpResponse::Json(200, std::move(*text)));
+  });
 }
 
 void ApiRoutes::Health(const net::HttpResponder& responder) {

@@ -1,5 +1,6 @@
 // ApiRoutes: the REST API of `octoscope serve` (docs/api.md) on top of the dataset registry —
-// health, metrics, the dataset list, histograms, and streaming ingest (create, slabs, finish).
+// health, metrics, the dataset list, histograms, streaming ingest (create, slabs, finish) and
+// stored view links (GET /api/views/{id}).
 // The net layer hands requests over on I/O threads; everything that touches disk or the octree
 // (slab inserts, finishing a stream) runs on the upload workers, and slab bodies are pulled from
 // the connection piece by piece into one buffer of exactly the expected size.
@@ -18,13 +19,15 @@
 #include "net/api_handler.h"
 #include "session/dataset_hub.h"
 #include "session/server_metrics.h"
+#include "session/view_store.h"
 #include "util/latest_wins_executor.h"
 
 namespace octoscope::app {
 
 struct ApiRoutesOptions {
   std::string version;
-  int max_concurrent_uploads = 8;  // More at once: 429.
+  int max_concurrent_uploads = 8;       // More at once: 429.
+  session::ViewStore* views = nullptr;  // GET /api/views/{id}; null: 404.
 };
 
 class ApiRoutes : public net::ApiHandler {
@@ -46,6 +49,7 @@ class ApiRoutes : public net::ApiHandler {
   void PutSlab(const net::HttpRequest& request, const std::string& id,
                const net::HttpResponder& responder);
   void Finish(const std::string& id, const net::HttpResponder& responder);
+  void GetView(const std::string& id, const net::HttpResponder& responder);
   // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
   bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
   void Respond(const net::HttpResponder& responder, net::HttpResponse response);

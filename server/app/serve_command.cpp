@@ -24,12 +24,16 @@
 #include "dataset/demo_stream.h"
 #include "dataset/folder_watcher.h"
 #include "encode/jpeg_encoder.h"
+#include "net/auth.h"
 #include "net/server.h"
+#include "protocol/query_string.h"
 #include "render/device.h"
 #include "render/render_service.h"
 #include "session/dataset_hub.h"
 #include "session/server_metrics.h"
+#include "session/session_registry.h"
 #include "session/view_session.h"
+#include "session/view_store.h"
 #include "util/latest_wins_executor.h"
 #include "util/logger.h"
 #include "util/random_token.h"
@@ -61,6 +65,25 @@ int WaitForStopSignal(const sigset_t& set) {
   while (sigwait(&set, &signal) != 0) {
   }
   return signal;
+}
+
+// What a WebSocket connection authenticated as: a share link (`share=`), a view link (`view=`)
+// or the user token.
+WsCredential ConnectionCredential(const net::WsConnectInfo& info) {
+  WsCredential credential;
+  credential.user = "owner";
+  auto parameters = protocol::ParseQueryString(info.query);
+  if (!parameters.ok()) return credential;
+  for (const auto& p : *parameters) {
+    if (p.name == "share") {
+      credential.kind = WsCredential::Kind::kShare;
+      credential.credential = p.value;
+    } else if (p.name == "view" && credential.kind != WsCredential::Kind::kShare) {
+      credential.kind = WsCredential::Kind::kView;
+      credential.credential = p.value;
+    }
+  }
+  return credential;
 }
 
 }  // namespace
@@ -145,19 +168,41 @@ int RunServe(std::span<const std::string> args) {
   session_context.timers = &timers;
   session_context.metrics = &metrics;
   session_context.server_version = kVersion;
+  // Sharing: view links in the state folder, sessions within their limits.
+  auto views = session::ViewStore::Open(settings->state_dir);
+  if (!views.ok()) return Fail("--state-dir", views.status());
+  session::SessionLimits limits;
+  limits.max_sessions = settings->max_sessions;
+  limits.idle_timeout = std::chrono::seconds(settings->idle_timeout_s);
+  auto sessions = std::make_unique<session::SessionRegistry>(&timers, limits);
+  session_context.registry = sessions.get();
+  session_context.views = views->get();
+  session_context.max_participants = settings->max_participants;
+  session::LinkBase link_base;
+  session_context.link_base = &link_base;
 
   net::ServerOptions server_options;
   server_options.bind_address = settings->bind;
   server_options.port = settings->port;
   server_options.io_threads = settings->io_threads;
-  server_options.token = settings->token;
+  server_options.authenticator = std::make_shared<net::TokenAuthenticator>(settings->token);
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
+  ApiRoutesOptions routes_options;
+  routes_options.version = kVersion;
+  routes_options.views = views->get();
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
-                                            ApiRoutesOptions{kVersion});
-  auto server =
-      net::Server::Start(server_options, routes, MakeSessionFactory(&session_context), logger);
+                                            routes_options);
+  auto server = net::Server::Start(
+      server_options, routes, MakeSessionFactory(&session_context, ConnectionCredential), logger);
   if (!server.ok()) return Fail("listen", server.status());
+  // Links carry the public URL (default: where this server listens).
+  link_base.Set(!settings->public_url.empty() ? settings->public_url
+                                              : "http://" +
+                                                    (settings->bind.find(':') != std::string::npos
+                                                         ? "[" + settings->bind + "]"
+                                                         : settings->bind) +
+                                                    ":" + std::to_string((*server)->port()) + "/");
   metrics.SetHttpCounts([server = server->get()] { return server->responses_by_status(); });
 
   std::printf("%s\n", ServeUrl(*settings, (*server)->port(), open_dataset).c_str());
@@ -171,6 +216,7 @@ int RunServe(std::span<const std::string> args) {
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
   // In order: no new connections and sessions closed; no new data; datasets flushed.
   (*server)->Shutdown();
+  sessions.reset();  // Parked sessions released.
   metrics.SetHttpCounts(nullptr);
   watchers.clear();
   demo.reset();

@@ -105,6 +105,13 @@ void AddServeFlags(Flags& flags) {
   flags.AddValue("web", "DIR", "the web client's files", "web/ beside the binary");
   flags.AddValue("io-threads", "N", "network I/O threads", "2");
   flags.AddValue("max-upload-mb", "N", "largest slab upload", "1024");
+  flags.AddValue("state-dir", "DIR", "durable server state (view links); back it up",
+                 "$XDG_STATE_HOME/octoscope");
+  flags.AddValue("public-url", "URL", "base of the share and view links the server hands out",
+                 "http://BIND:PORT/");
+  flags.AddValue("max-sessions", "N", "viewing sessions at once", "64");
+  flags.AddValue("max-participants", "N", "participants per session", "16");
+  flags.AddValue("idle-timeout-s", "S", "release a session this long without participants", "900");
 }
 
 Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
@@ -192,6 +199,28 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
   auto upload = integer("max-upload-mb", config.max_upload_mb, 1024, 1, int64_t{1} << 20);
   if (!upload.ok()) return upload.status();
   s.max_upload_mb = static_cast<uint64_t>(*upload);
+
+  // Sharing (docs/protocol.md "Sharing").
+  if (auto dir = flags.Get("state-dir")) {
+    s.state_dir = *dir;
+  } else if (const char* xdg = std::getenv("XDG_STATE_HOME"); xdg != nullptr && *xdg != '\0') {
+    s.state_dir = fs::path(xdg) / "octoscope";
+  } else if (const char* home = std::getenv("HOME"); home != nullptr && *home != '\0') {
+    s.state_dir = fs::path(home) / ".local" / "state" / "octoscope";
+  } else {
+    return InvalidArgumentError("--state-dir: give one (no $XDG_STATE_HOME or $HOME)");
+  }
+  s.public_url = flags.Get("public-url").value_or("");
+  if (!s.public_url.empty() && !s.public_url.ends_with("/")) s.public_url += "/";
+  auto max_sessions = integer("max-sessions", std::nullopt, 64, 1, 100000);
+  if (!max_sessions.ok()) return max_sessions.status();
+  s.max_sessions = static_cast<int>(*max_sessions);
+  auto max_participants = integer("max-participants", std::nullopt, 16, 1, 10000);
+  if (!max_participants.ok()) return max_participants.status();
+  s.max_participants = static_cast<int>(*max_participants);
+  auto idle = integer("idle-timeout-s", std::nullopt, 900, 1, int64_t{1} << 31);
+  if (!idle.ok()) return idle.status();
+  s.idle_timeout_s = *idle;
 
   // The token: given, from a file, or generated (as Jupyter does).
   const auto token = text("token", config.token);

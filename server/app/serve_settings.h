@@ -37,6 +37,11 @@ struct ServeSettings {
   int io_threads = 2;
   int encoder_threads = 2;
   uint64_t max_upload_mb = 1024;
+  std::filesystem::path state_dir;  // View links live in state_dir/views.
+  std::string public_url;           // "" = http://BIND:PORT/ (ends with "/").
+  int max_sessions = 64;
+  int max_participants = 16;
+  int64_t idle_timeout_s = 900;
 };
 
 void AddServeFlags(Flags& flags);

@@ -1,7 +1,10 @@
-// WsBridge: plugs viewing sessions into the net layer's WebSocket endpoint. Each connection gets
-// a session::ViewSession whose SessionSink is the connection's net::WsSink; text messages go to
-// the session, the connection's end closes it. The net layer and the session layer stay unaware
-// of each other.
+// WsBridge: plugs viewing sessions into the net layer's WebSocket endpoint. Each connection is a
+// participant of one session::ViewSession: a connection with a user credential creates a new
+// session (and owns it) — or, with a view link (`/ws?view=ID`), a new session holding the stored
+// view; a connection with a share link (`/ws?share=TOKEN`) joins that link's session in the
+// link's role. The owner's `hello` with a `resume` key moves the connection back into its earlier
+// session. Text messages go to the session, the connection's end leaves it. The net layer and
+// the session layer stay unaware of each other.
 //
 // Thread safety: the handler's calls come on the connection's strand (net/ws_handler.h); the
 // sink adapter may be used from any thread.
@@ -9,14 +12,29 @@
 #define OCTOSCOPE_APP_WS_BRIDGE_H_
 
 #include <memory>
+#include <string>
 
 #include "net/ws_handler.h"
+#include "session/session_registry.h"
 #include "session/view_session.h"
 
 namespace octoscope::app {
 
-// The factory the net::Server calls per connection. `context` must outlive the server.
+// What a connection authenticated as, for the bridge.
+struct WsCredential {
+  enum class Kind { kUser, kShare, kView };
+  Kind kind = Kind::kUser;
+  std::string user;        // kUser: the user's name.
+  std::string credential;  // kShare: the share token; kView: the view id.
+};
+
+// The credential of a connection (from the net layer's connect info).
+using WsCredentialFn = std::function<WsCredential(const net::WsConnectInfo& info)>;
+
+// The factory the net::Server calls per connection. `context` (with its registry, which must be
+// set) must outlive the server.
 net::WsHandlerFactory MakeSessionFactory(const session::SessionContext* context,
+                                         WsCredentialFn credential,
                                          const session::ViewSessionOptions& options = {});
 
 }  // namespace octoscope::app

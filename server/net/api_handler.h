@@ -1,8 +1,8 @@
 // ApiHandler: what the app plugs into the server for everything under /api and /metrics
-// (docs/api.md). The net layer does the HTTP: it reads and limits the request, checks the token
-// (except for GET /api/health), hands the handler a parsed HttpRequest, and writes whatever
-// HttpResponse the handler answers with — from any thread, whenever it is ready, so that slow
-// work (slab inserts, dataset builds) runs on the handler's own threads while the I/O threads
+// (docs/api.md). The net layer does the HTTP: it reads and limits the request, checks the
+// credentials (except for GET /api/health), hands the handler a parsed HttpRequest, and writes
+// whatever HttpResponse the handler answers with — from any thread, whenever it is ready, so that
+// slow work (slab inserts, dataset builds) runs on the handler's own threads while the I/O threads
 // go on serving others.
 //
 // Bodies: a request whose body the handler asks to stream (BodyModeFor → kStreamed; slab
@@ -24,6 +24,7 @@
 #include <string_view>
 #include <vector>
 
+#include "net/principal.h"
 #include "util/result.h"
 
 namespace octoscope::net {
@@ -38,11 +39,15 @@ class BodyReader;
 struct HttpRequest {
   std::string method;  // "GET", "PUT", ... as sent.
   std::string path;    // Percent-decoded, without the query ("/api/datasets/ab12/slabs").
-  std::string query;   // Raw (still encoded), without '?' and without the "token" parameter.
+  // Raw (still encoded), without '?' and without the "token", "share" and "view" parameters.
+  std::string query;
   std::vector<HttpHeader> headers;          // As received, without Authorization.
   std::string body;                         // The whole body (BodyMode::kBuffered); else empty.
   std::shared_ptr<BodyReader> body_reader;  // Set for BodyMode::kStreamed, else null.
   std::string remote;                       // "127.0.0.1:54321".
+  // Who the request speaks for (the Authenticator's answer). GET /api/health, answered without
+  // credentials, has a default Principal: a user with an empty name, not admin.
+  Principal principal;
 
   // The value of the first header named `name` (case-insensitive), or "".
   std::string_view Header(std::string_view name) const;

@@ -121,6 +121,7 @@ void HttpSession::DoReadHeader() {
   method_.clear();
   path_.clear();
   query_.clear();
+  principal_ = Principal();
   keep_alive_ = false;
   body_complete_ = true;
   expect_continue_ = false;
@@ -186,10 +187,25 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
   Route();
 }
 
-bool HttpSession::Authorized() const {
+bool HttpSession::Authenticate() {
   const auto& request = header_parser_->get();
-  return RequestCarriesToken(core_->options.token, Std(request[http::field::authorization]),
-                             query_);
+  const std::string_view authorization = Std(request[http::field::authorization]);
+  std::optional<Principal> principal;
+  std::string refusal = "missing or wrong token";
+  const bool ok = core_->CallUser("Authenticator", [&] {
+    principal = core_->options.authenticator->Authenticate(authorization, query_);
+    if (!principal) refusal = core_->options.authenticator->RefusalMessage(authorization, query_);
+  });
+  if (!ok) {
+    SendError(500, "internal error while checking the credentials");
+    return false;
+  }
+  if (!principal) {
+    SendError(401, refusal);
+    return false;
+  }
+  principal_ = std::move(*principal);
+  return true;
 }
 
 void HttpSession::Route() {
@@ -201,9 +217,7 @@ void HttpSession::Route() {
   if (websocket::is_upgrade(request)) {
     if (path_ != "/ws") {
       SendError(404, "no WebSocket endpoint at this path");
-    } else if (!Authorized()) {
-      SendError(401, "missing or wrong token");
-    } else {
+    } else if (Authenticate()) {
       UpgradeToWebSocket();
     }
     return;
@@ -216,10 +230,7 @@ void HttpSession::Route() {
   if (api) {
     const bool health = path_ == "/api/health" && (request.method() == http::verb::get ||
                                                    request.method() == http::verb::head);
-    if (!health && !Authorized()) {
-      SendError(401, "missing or wrong token");
-      return;
-    }
+    if (!health && !Authenticate()) return;
     StartApi();
     return;
   }
@@ -287,8 +298,9 @@ void HttpSession::StartApi() {
   HttpRequest r;
   r.method = method_;
   r.path = path_;
-  r.query = protocol::RemoveQueryParameter(query_, "token");
+  r.query = StripCredentials(query_);
   r.remote = remote_;
+  r.principal = principal_;
   for (const auto& field : request) {
     if (field.name() == http::field::authorization) continue;  // Handlers never see the secret.
     r.headers.push_back({std::string(Std(field.name_string())), std::string(Std(field.value()))});
@@ -531,7 +543,7 @@ void HttpSession::ContinueThen(std::function<void()> next) {
 void HttpSession::UpgradeToWebSocket() {
   http::request<http::empty_body> request = header_parser_->release();
   header_parser_.reset();
-  WsConnectInfo info{remote_, protocol::RemoveQueryParameter(query_, "token")};
+  WsConnectInfo info{remote_, StripCredentials(query_), std::move(principal_)};
   auto session =
       std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info));
   state_ = State::kClosed;  // This object ends here; the socket lives on in the WebSocket.

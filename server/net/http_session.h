@@ -1,5 +1,5 @@
 // HttpSession: one HTTP/1.1 connection (internal to server/net). Reads a request header (at most
-// max_header_bytes), checks the route and the token, then serves a static file, hands the
+// max_header_bytes), checks the route and the credentials, then serves a static file, hands the
 // request to the ApiHandler (buffered or streamed body), or turns the connection into a
 // WebSocketSession; keep-alive loops back to the next header. One request at a time: the next
 // header is read only after the response was written.
@@ -53,7 +53,9 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   void DoReadHeader();
   void OnReadHeader(boost::beast::error_code ec);
   void Route();
-  bool Authorized() const;
+  // Asks the Authenticator; on success the principal is kept in principal_, else a 401 with the
+  // Authenticator's message was sent and false is returned.
+  bool Authenticate();
   void ServeStatic();
   void StartApi();
   void OnReadBufferedBody(boost::beast::error_code ec);
@@ -95,6 +97,7 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   std::optional<boost::beast::http::request_parser<boost::beast::http::buffer_body>> upload_parser_;
   std::string path_;   // Decoded.
   std::string query_;  // Raw.
+  Principal principal_;
   std::string method_;
   bool keep_alive_ = false;
   bool body_complete_ = true;                      // The request's body has been read completely.

@@ -104,7 +104,7 @@ class Listener : public std::enable_shared_from_this<Listener> {
 };
 
 Status ValidateOptions(const ServerOptions& o) {
-  if (o.token.empty()) return InvalidArgumentError("server: the token must not be empty");
+  if (!o.authenticator) return InvalidArgumentError("server: an authenticator is required");
   if (o.io_threads < 1 || o.io_threads > 64) {
     return InvalidArgumentError("server: io_threads must be in [1, 64], got " +
                                 std::to_string(o.io_threads));

@@ -2,13 +2,14 @@
 // "net"). A listener on one address and port, an io_context run by N I/O threads, one strand per
 // connection. It serves the web client's static files itself, routes /api and /metrics to the
 // app's ApiHandler and WebSocket upgrades at /ws to handlers from the app's WsHandlerFactory,
-// after checking the token (net/auth.h). I/O threads never block: handlers answer
-// asynchronously, uploads are pulled piece by piece, each WebSocket has its own bounded queue.
+// after the Authenticator named the request's Principal (net/principal.h). I/O threads never block:
+// handlers answer asynchronously, uploads are pulled piece by piece, each WebSocket has its own
+// bounded queue.
 //
 // Limits (ServerOptions; docs/api.md): request line + headers 8 KiB (431, checked before the
-// token), JSON bodies 64 KiB and uploads 1 GiB (413, enforced while reading), WebSocket messages
-// 64 KiB (close 1009), WebSocket send queue 64 MiB (then the connection is dropped); idle and
-// stalled connections time out. Malformed HTTP gets 400 and the connection closes; other
+// credentials), JSON bodies 64 KiB and uploads 1 GiB (413, enforced while reading), WebSocket
+// messages 64 KiB (close 1009), WebSocket send queue 64 MiB (then the connection is dropped); idle
+// and stalled connections time out. Malformed HTTP gets 400 and the connection closes; other
 // connections never notice.
 //
 // Shutdown(): stop accepting; idle HTTP connections close; HTTP requests in flight finish (their
@@ -30,6 +31,7 @@
 #include <vector>
 
 #include "net/api_handler.h"
+#include "net/principal.h"
 #include "net/ws_handler.h"
 #include "util/logger.h"
 #include "util/result.h"
@@ -40,7 +42,8 @@ struct ServerOptions {
   std::string bind_address = "127.0.0.1";  // An IPv4 or IPv6 address literal.
   uint16_t port = 0;                       // 0 picks a free port (see Server::port()).
   int io_threads = 2;                      // [1, 64].
-  std::string token;                       // REQUIRED, non-empty.
+  // REQUIRED: decides who each API request and WebSocket upgrade speaks for (net/principal.h).
+  std::shared_ptr<const Authenticator> authenticator;
   // The web client's files; empty serves none (every static path is 404).
   std::filesystem::path web_root;
 

@@ -23,6 +23,8 @@
 #include <string>
 #include <vector>
 
+#include "net/principal.h"
+
 namespace octoscope::net {
 
 // WebSocket close codes used by the server (RFC 6455, 7.4.1).
@@ -86,7 +88,9 @@ class WsHandler {
 
 struct WsConnectInfo {
   std::string remote;  // "127.0.0.1:54321".
-  std::string query;   // The upgrade request's raw query without the "token" parameter.
+  // The upgrade request's raw query without the "token", "share" and "view" parameters.
+  std::string query;
+  Principal principal;  // Who the connection speaks for (the Authenticator's answer).
 };
 
 // Creates the handler of a new connection (on an I/O thread; must not block). Returning null

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <ctime>
 #include <initializer_list>
 #include <utility>
 #include <vector>
@@ -28,9 +29,32 @@ Result<std::array<double, 3>> GetNumber3(const Json& j, const std::string& path,
   return std::array<double, 3>{v[0], v[1], v[2]};
 }
 
-constexpr std::string_view kTypeNames[] = {"hello",  "open",       "camera",      "params",
-                                           "slices", "viewport",   "interaction", "quality",
-                                           "ack",    "screenshot", "ping"};
+constexpr std::string_view kTypeNames[] = {"hello",        "open",
+                                           "camera",       "params",
+                                           "slices",       "viewport",
+                                           "interaction",  "quality",
+                                           "ack",          "screenshot",
+                                           "ping",         "share_create",
+                                           "share_revoke", "participant_role",
+                                           "kick",         "view_save"};
+
+constexpr std::string_view kRoleNames[] = {"owner", "controller", "viewer"};
+
+// "viewer" or "controller" (the roles a client may give).
+Result<Role> GetGrantableRole(const Json& j, const std::string& path) {
+  OCTO_ASSIGN_OR_RETURN(std::string name, GetString(j, path, 16, true));
+  if (name == "viewer") return Role::kViewer;
+  if (name == "controller") return Role::kController;
+  return FieldError(path, "is \"" + Printable(name, 16) + "\", expected viewer or controller");
+}
+
+Result<std::string> GetParticipantId(const Json& doc, const std::string& type) {
+  const std::string path = type + ".participant";
+  OCTO_ASSIGN_OR_RETURN(const Json* j, Require(doc, type, "participant"));
+  OCTO_ASSIGN_OR_RETURN(std::string id, GetString(*j, path, kMaxParticipantIdBytes, true));
+  if (id.empty()) return FieldError(path, "is empty");
+  return id;
+}
 
 // Rewrites an error of a render_json parser ("position: must be ...", "camera: missing ...",
 // "unknown key ...") so that it names the field from the message's root ("camera.position: ...").
@@ -112,9 +136,16 @@ Result<StateUpdate> StateFromJson(const Json& j, const std::string& path) {
   return state;
 }
 
+bool IsDatasetId(std::string_view id) {
+  return !id.empty() && id.size() <= kMaxDatasetIdBytes &&
+         std::all_of(id.begin(), id.end(), [](char c) {
+           return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
+         });
+}
+
 // One parser per message type; `doc` has been checked to be an object with this "type".
 Result<ClientMessage> ParseHello(const Json& doc) {
-  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "hello", {"type", "client", "protocol"}));
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "hello", {"type", "client", "protocol", "name", "resume"}));
   OCTO_ASSIGN_OR_RETURN(const Json* protocol, Require(doc, "hello", "protocol"));
   OCTO_ASSIGN_OR_RETURN(int64_t version, GetInteger(*protocol, "hello.protocol", 0, INT32_MAX));
   if (version != kProtocolVersion) {
@@ -126,20 +157,37 @@ Result<ClientMessage> ParseHello(const Json& doc) {
   if (auto it = doc.find("client"); it != doc.end()) {
     OCTO_ASSIGN_OR_RETURN(hello.client, GetString(*it, "hello.client", kMaxClientNameBytes, true));
   }
+  if (auto it = doc.find("name"); it != doc.end()) {
+    OCTO_ASSIGN_OR_RETURN(hello.name, GetString(*it, "hello.name", kMaxParticipantNameBytes, true));
+    if (hello.name.empty()) return FieldError("hello.name", "is empty");
+  }
+  if (auto it = doc.find("resume"); it != doc.end()) {
+    OCTO_ASSIGN_OR_RETURN(hello.resume, GetString(*it, "hello.resume", 64, true));
+    if (!IsHexKey(hello.resume)) {
+      return FieldError("hello.resume", "is not a resume key (32 of 0-9 a-f)");
+    }
+  }
   return ClientMessage(std::move(hello));
 }
 
 Result<ClientMessage> ParseOpen(const Json& doc) {
-  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "open", {"type", "dataset", "state"}));
-  OCTO_ASSIGN_OR_RETURN(const Json* dataset, Require(doc, "open", "dataset"));
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "open", {"type", "dataset", "state", "view"}));
   OpenMessage open;
+  if (auto it = doc.find("view"); it != doc.end()) {
+    if (doc.contains("dataset") || doc.contains("state")) {
+      return FieldError("open.view", "is given with dataset or state (a view link opens alone)");
+    }
+    OCTO_ASSIGN_OR_RETURN(open.view, GetString(*it, "open.view", 64, true));
+    if (!IsViewLinkId(open.view)) {
+      return FieldError("open.view", "\"" + Printable(open.view, 40) +
+                                         "\" is not a view-link id (22 of A-Z a-z 0-9 _ -)");
+    }
+    return ClientMessage(std::move(open));
+  }
+  OCTO_ASSIGN_OR_RETURN(const Json* dataset, Require(doc, "open", "dataset"));
   OCTO_ASSIGN_OR_RETURN(open.dataset,
                         GetString(*dataset, "open.dataset", kMaxDatasetIdBytes, true));
-  const bool valid_id =
-      !open.dataset.empty() && std::all_of(open.dataset.begin(), open.dataset.end(), [](char c) {
-        return (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
-      });
-  if (!valid_id) {
+  if (!IsDatasetId(open.dataset)) {
     return FieldError("open.dataset", "\"" + Printable(open.dataset, 40) +
                                           "\" is not a dataset id (1 to 64 of a-z 0-9 _ -)");
   }
@@ -254,7 +302,59 @@ Result<ClientMessage> ParsePing(const Json& doc) {
   return ClientMessage(std::move(ping));
 }
 
+Result<ClientMessage> ParseShareCreate(const Json& doc) {
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "share_create", {"type", "role", "ttl_s"}));
+  ShareCreateMessage share;
+  OCTO_ASSIGN_OR_RETURN(const Json* role, Require(doc, "share_create", "role"));
+  OCTO_ASSIGN_OR_RETURN(share.role, GetGrantableRole(*role, "share_create.role"));
+  if (auto it = doc.find("ttl_s"); it != doc.end()) {
+    OCTO_ASSIGN_OR_RETURN(share.ttl_s, GetInteger(*it, "share_create.ttl_s", kMinShareTtlSeconds,
+                                                  kMaxShareTtlSeconds));
+  }
+  return ClientMessage(std::move(share));
+}
+
+Result<ClientMessage> ParseShareRevoke(const Json& doc) {
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "share_revoke", {"type", "token"}));
+  OCTO_ASSIGN_OR_RETURN(const Json* token, Require(doc, "share_revoke", "token"));
+  ShareRevokeMessage revoke;
+  OCTO_ASSIGN_OR_RETURN(revoke.token,
+                        GetString(*token, "share_revoke.token", kMaxShareTokenBytes, true));
+  if (revoke.token.empty()) return FieldError("share_revoke.token", "is empty");
+  return ClientMessage(std::move(revoke));
+}
+
+Result<ClientMessage> ParseParticipantRole(const Json& doc) {
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "participant_role", {"type", "participant", "role"}));
+  ParticipantRoleMessage message;
+  OCTO_ASSIGN_OR_RETURN(message.participant, GetParticipantId(doc, "participant_role"));
+  OCTO_ASSIGN_OR_RETURN(const Json* role, Require(doc, "participant_role", "role"));
+  OCTO_ASSIGN_OR_RETURN(message.role, GetGrantableRole(*role, "participant_role.role"));
+  return ClientMessage(std::move(message));
+}
+
+Result<ClientMessage> ParseKick(const Json& doc) {
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "kick", {"type", "participant"}));
+  KickMessage kick;
+  OCTO_ASSIGN_OR_RETURN(kick.participant, GetParticipantId(doc, "kick"));
+  return ClientMessage(std::move(kick));
+}
+
+Result<ClientMessage> ParseViewSave(const Json& doc) {
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view_save", {"type"}));
+  return ClientMessage(ViewSaveMessage{});
+}
+
 std::string Number(double v) { return Json(v).dump(); }
+
+std::string ExpiresJson(const std::optional<int64_t>& expires) {
+  return expires ? Quote(IsoUtc(*expires)) : std::string("null");
+}
+
+std::string ShareFields(const ShareInfo& share) {
+  return "\"token\":" + Quote(share.token) + ",\"role\":" + Quote(RoleName(share.role)) +
+         ",\"url\":" + Quote(share.url) + ",\"expires\":" + ExpiresJson(share.expires_unix_s);
+}
 
 }  // namespace
 
@@ -269,9 +369,14 @@ Result<ClientMessage> ParseClientMessage(std::string_view text, std::string* typ
   OCTO_ASSIGN_OR_RETURN(std::string name,
                         GetString(*type_field, "type", kMaxClientStringBytes, false));
   using Parser = Result<ClientMessage> (*)(const Json&);
-  static constexpr Parser kParsers[] = {
-      ParseHello,       ParseOpen,    ParseCamera, ParseParams,     ParseSlices, ParseViewport,
-      ParseInteraction, ParseQuality, ParseAck,    ParseScreenshot, ParsePing};
+  static constexpr Parser kParsers[] = {ParseHello,       ParseOpen,
+                                        ParseCamera,      ParseParams,
+                                        ParseSlices,      ParseViewport,
+                                        ParseInteraction, ParseQuality,
+                                        ParseAck,         ParseScreenshot,
+                                        ParsePing,        ParseShareCreate,
+                                        ParseShareRevoke, ParseParticipantRole,
+                                        ParseKick,        ParseViewSave};
   static_assert(std::size(kParsers) == std::size(kTypeNames));
   static_assert(std::size(kTypeNames) == std::variant_size_v<ClientMessage>);
   for (size_t i = 0; i < std::size(kTypeNames); ++i) {
@@ -327,10 +432,14 @@ std::string StateJson(const ViewState& state) {
   return out;
 }
 
-std::string WelcomeEvent(std::string_view server_version, std::string_view session_id) {
-  return "{\"type\":\"welcome\",\"protocol\":" + std::to_string(kProtocolVersion) +
-         ",\"server\":" + Quote(server_version) + ",\"session\":" + Quote(session_id) +
-         ",\"datasets_url\":\"/api/datasets\"}";
+std::string WelcomeEvent(std::string_view server_version, std::string_view session_id,
+                         std::string_view participant, Role role, std::string_view resume) {
+  std::string out = "{\"type\":\"welcome\",\"protocol\":" + std::to_string(kProtocolVersion) +
+                    ",\"server\":" + Quote(server_version) + ",\"session\":" + Quote(session_id) +
+                    ",\"datasets_url\":\"/api/datasets\",\"participant\":" + Quote(participant) +
+                    ",\"role\":" + Quote(RoleName(role));
+  if (!resume.empty()) out += ",\"resume\":" + Quote(resume);
+  return out + "}";
 }
 
 std::string OpenedEvent(std::string_view dataset_json, const ViewState& state, uint64_t version) {
@@ -338,9 +447,103 @@ std::string OpenedEvent(std::string_view dataset_json, const ViewState& state, u
          ",\"state\":" + StateJson(state) + ",\"version\":" + std::to_string(version) + "}";
 }
 
-std::string StateEvent(const ViewState& state, uint64_t version) {
-  return "{\"type\":\"state\",\"version\":" + std::to_string(version) +
-         ",\"state\":" + StateJson(state) + "}";
+std::string StateEvent(const ViewState& state, uint64_t version, std::string_view by) {
+  std::string out = "{\"type\":\"state\",\"version\":" + std::to_string(version) +
+                    ",\"state\":" + StateJson(state);
+  if (!by.empty()) out += ",\"by\":" + Quote(by);
+  return out + "}";
+}
+
+std::string_view RoleName(Role role) { return kRoleNames[static_cast<size_t>(role)]; }
+
+bool IsViewLinkId(std::string_view id) {
+  return id.size() == kViewLinkIdChars && std::all_of(id.begin(), id.end(), [](char c) {
+           return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') ||
+                  c == '_' || c == '-';
+         });
+}
+
+bool IsHexKey(std::string_view key) {
+  return key.size() == kResumeKeyChars && std::all_of(key.begin(), key.end(), [](char c) {
+           return (c >= '0' && c <= '9') || (c >= 'a' && c <= 'f');
+         });
+}
+
+std::string ParticipantsEvent(const std::vector<ParticipantInfo>& participants,
+                              std::string_view you) {
+  std::string out = "{\"type\":\"participants\",\"participants\":[";
+  for (size_t i = 0; i < participants.size(); ++i) {
+    const ParticipantInfo& p = participants[i];
+    out += std::string(i ? "," : "") + "{\"id\":" + Quote(p.id) + ",\"name\":" + Quote(p.name) +
+           ",\"role\":" + Quote(RoleName(p.role)) +
+           ",\"driving\":" + (p.driving ? "true" : "false") +
+           ",\"you\":" + (p.id == you ? "true" : "false") + "}";
+  }
+  return out + "]}";
+}
+
+std::string ShareCreatedEvent(const ShareInfo& share) {
+  return "{\"type\":\"share_created\"," + ShareFields(share) + "}";
+}
+
+std::string SharesEvent(const std::vector<ShareInfo>& shares) {
+  std::string out = "{\"type\":\"shares\",\"shares\":[";
+  for (size_t i = 0; i < shares.size(); ++i) {
+    out += std::string(i ? "," : "") + "{" + ShareFields(shares[i]) +
+           ",\"participants\":" + std::to_string(shares[i].participants) + "}";
+  }
+  return out + "]}";
+}
+
+std::string ViewSavedEvent(std::string_view id, std::string_view url) {
+  return "{\"type\":\"view_saved\",\"id\":" + Quote(id) + ",\"url\":" + Quote(url) + "}";
+}
+
+std::string IsoUtc(int64_t unix_s) {
+  const std::time_t t = static_cast<std::time_t>(unix_s);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%SZ", &tm);
+  return buffer;
+}
+
+std::string ViewLinkJson(std::string_view dataset, const ViewState& state) {
+  // The camera in its canonical form: CameraToJson of a camera read back from its own JSON may
+  // differ in the last digits (target and up are recomputed), so it is read back until the text
+  // no longer changes — then opening the link gives a session whose state reads exactly as stored.
+  ViewState canonical = state;
+  std::string camera = CameraToJson(canonical.camera);
+  for (int i = 0; i < 4; ++i) {
+    Result<render::Camera> again = ParseCameraJson(camera, render::Projection::kOrthographic, 1, 1);
+    if (!again.ok()) break;
+    canonical.camera = *again;
+    std::string text = CameraToJson(canonical.camera);
+    if (text == camera) break;
+    camera = std::move(text);
+  }
+  return "{\"version\":1,\"dataset\":" + Quote(dataset) + ",\"state\":" + StateJson(canonical) +
+         "}";
+}
+
+Result<ViewLink> ParseViewLink(std::string_view text) {
+  // Stored documents are small; the message limits bound them too.
+  OCTO_ASSIGN_OR_RETURN(Json doc, ParseMessageText(text, "view link"));
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view link", {"version", "dataset", "state"}));
+  OCTO_ASSIGN_OR_RETURN(const Json* version, Require(doc, "view link", "version"));
+  OCTO_ASSIGN_OR_RETURN(int64_t v, GetInteger(*version, "version", 1, 1));
+  (void)v;
+  ViewLink link;
+  OCTO_ASSIGN_OR_RETURN(const Json* dataset, Require(doc, "view link", "dataset"));
+  OCTO_ASSIGN_OR_RETURN(link.dataset, GetString(*dataset, "dataset", kMaxDatasetIdBytes, true));
+  if (!IsDatasetId(link.dataset)) return FieldError("dataset", "is not a dataset id");
+  OCTO_ASSIGN_OR_RETURN(const Json* state, Require(doc, "view link", "state"));
+  OCTO_ASSIGN_OR_RETURN(link.state, StateFromJson(*state, "state"));
+  if (!link.state.camera || !link.state.params_json || !link.state.slice_position_um ||
+      !link.state.layout) {
+    return FieldError("state", "must hold camera, params, slices and layout");
+  }
+  return link;
 }
 
 std::string DatasetEvent(std::string_view dataset_json) {

@@ -20,6 +20,7 @@
 #include <string>
 #include <string_view>
 #include <variant>
+#include <vector>
 
 #include "protocol/view_id.h"
 #include "render/camera.h"
@@ -49,12 +50,25 @@ inline constexpr double kMinLodBias = -2, kMaxLodBias = 4;
 inline constexpr uint64_t kMaxSafeInteger = (uint64_t{1} << 53) - 1;
 // Largest |coordinate| in µm accepted for slice positions (clamped to the volume afterwards).
 inline constexpr double kMaxCoordinateUm = 1e9;
+// Sharing (docs/protocol.md, "Sharing").
+inline constexpr size_t kMaxParticipantNameBytes = 64;
+inline constexpr size_t kMaxParticipantIdBytes = 32;
+inline constexpr size_t kMaxShareTokenBytes = 128;
+inline constexpr size_t kResumeKeyChars = 32;   // Hex digits of a 128-bit key.
+inline constexpr size_t kViewLinkIdChars = 22;  // base64url of a 128-bit id.
+inline constexpr int64_t kMinShareTtlSeconds = 60, kMaxShareTtlSeconds = 31536000;
 
 // ---- Client → server ----
 
 struct HelloMessage {
   std::string client;  // Informative; "" when absent. The protocol version was checked.
+  std::string name;    // Display name for the other participants; "" when absent.
+  std::string resume;  // The owner's resume key (kResumeKeyChars of 0-9a-f); "" when absent.
 };
+
+// Participant roles (docs/protocol.md, "Sharing").
+enum class Role { kOwner, kController, kViewer };
+std::string_view RoleName(Role role);  // "owner", "controller", "viewer".
 
 // The layout part of the state document.
 struct Layout {
@@ -72,9 +86,11 @@ struct StateUpdate {
   std::optional<Layout> layout;
 };
 
+// Either `dataset` (with an optional state) or `view` (a view link, alone) is set.
 struct OpenMessage {
-  std::string dataset;               // 1 to kMaxDatasetIdBytes of [a-z0-9_-].
+  std::string dataset;               // 1 to kMaxDatasetIdBytes of [a-z0-9_-]; "" with `view`.
   std::optional<StateUpdate> state;  // Applied over the dataset's defaults.
+  std::string view;                  // A view-link id (IsViewLinkId); "" with `dataset`.
 };
 
 struct CameraMessage {
@@ -124,9 +140,36 @@ struct PingMessage {
   double t = 0;  // Finite; echoed by pong.
 };
 
-using ClientMessage = std::variant<HelloMessage, OpenMessage, CameraMessage, ParamsMessage,
-                                   SlicesMessage, ViewportMessage, InteractionMessage,
-                                   QualityMessage, AckMessage, ScreenshotMessage, PingMessage>;
+struct ShareCreateMessage {
+  Role role = Role::kViewer;     // kViewer or kController.
+  std::optional<int64_t> ttl_s;  // [kMinShareTtlSeconds, kMaxShareTtlSeconds].
+};
+
+struct ShareRevokeMessage {
+  std::string token;  // 1 to kMaxShareTokenBytes.
+};
+
+struct ParticipantRoleMessage {
+  std::string participant;    // 1 to kMaxParticipantIdBytes.
+  Role role = Role::kViewer;  // kViewer or kController.
+};
+
+struct KickMessage {
+  std::string participant;
+};
+
+struct ViewSaveMessage {};
+
+using ClientMessage =
+    std::variant<HelloMessage, OpenMessage, CameraMessage, ParamsMessage, SlicesMessage,
+                 ViewportMessage, InteractionMessage, QualityMessage, AckMessage, ScreenshotMessage,
+                 PingMessage, ShareCreateMessage, ShareRevokeMessage, ParticipantRoleMessage,
+                 KickMessage, ViewSaveMessage>;
+
+// True for a view-link id: kViewLinkIdChars of A-Z a-z 0-9 _ -.
+bool IsViewLinkId(std::string_view id);
+// True for a share token or resume key as the server makes them: kResumeKeyChars of 0-9a-f.
+bool IsHexKey(std::string_view key);
 
 // The message's "type" ("hello", "open", ...).
 std::string_view MessageTypeName(const ClientMessage& message);
@@ -170,13 +213,16 @@ std::string StateJson(const ViewState& state);
 
 // ---- Server → client events (one JSON object each, compact) ----
 
-// {"type":"welcome","protocol":1,"server":VERSION,"session":ID,"datasets_url":"/api/datasets"}
-std::string WelcomeEvent(std::string_view server_version, std::string_view session_id);
+// {"type":"welcome","protocol":1,"server":VERSION,"session":ID,"datasets_url":"/api/datasets",
+//  "participant":P,"role":ROLE[,"resume":KEY]} (resume only when not empty).
+std::string WelcomeEvent(std::string_view server_version, std::string_view session_id,
+                         std::string_view participant = "p1", Role role = Role::kOwner,
+                         std::string_view resume = "");
 // {"type":"opened","dataset":DATASET,"state":STATE,"version":N}.
 // REQUIRES: dataset_json is one JSON object (as the protocol's dataset JSON builder writes it).
 std::string OpenedEvent(std::string_view dataset_json, const ViewState& state, uint64_t version);
-// {"type":"state","version":N,"state":STATE}
-std::string StateEvent(const ViewState& state, uint64_t version);
+// {"type":"state","version":N,"state":STATE[,"by":PARTICIPANT]} (by only when not empty).
+std::string StateEvent(const ViewState& state, uint64_t version, std::string_view by = "");
 // {"type":"dataset","dataset":DATASET}. REQUIRES: as OpenedEvent.
 std::string DatasetEvent(std::string_view dataset_json);
 // {"type":"error","message":..., "request":TYPE (omitted when empty), "fatal":bool}; the message
@@ -191,6 +237,45 @@ struct ConnectionStats {
   uint64_t bytes_sent = 0;
   uint64_t bricks_pending = 0;
 };
+struct ParticipantInfo {
+  std::string id;
+  std::string name;
+  Role role = Role::kViewer;
+  bool driving = false;
+};
+// {"type":"participants","participants":[{"id","name","role","driving","you"}...]}; `you` is
+// true for the entry whose id is `you`.
+std::string ParticipantsEvent(const std::vector<ParticipantInfo>& participants,
+                              std::string_view you);
+
+struct ShareInfo {
+  std::string token;
+  Role role = Role::kViewer;
+  std::string url;
+  std::optional<int64_t> expires_unix_s;  // nullopt: never.
+  int participants = 0;
+};
+// {"type":"share_created","token","role","url","expires":ISO-8601 UTC|null}
+std::string ShareCreatedEvent(const ShareInfo& share);
+// {"type":"shares","shares":[{"token","role","url","expires","participants"}...]}
+std::string SharesEvent(const std::vector<ShareInfo>& shares);
+// {"type":"view_saved","id","url"}
+std::string ViewSavedEvent(std::string_view id, std::string_view url);
+// "2026-11-25T12:00:00Z".
+std::string IsoUtc(int64_t unix_s);
+
+// ---- View links (STATE_DIR/views/ID.json; docs/protocol.md "View links") ----
+
+struct ViewLink {
+  std::string dataset;
+  StateUpdate state;  // Every part present in a document this server wrote.
+};
+// {"version":1,"dataset":ID,"state":STATE}
+std::string ViewLinkJson(std::string_view dataset, const ViewState& state);
+// Strict: unknown keys, a wrong version, a bad dataset id or state are kInvalidArgument naming
+// the field; the state must hold every part (camera, params, slices, layout).
+Result<ViewLink> ParseViewLink(std::string_view text);
+
 // {"type":"stats","frames_sent":..,"frames_dropped":..,"bytes_sent":..,"bricks_pending":..}
 std::string StatsEvent(const ConnectionStats& stats);
 

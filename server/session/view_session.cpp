@@ -9,17 +9,23 @@
 #include "encode/image_encoder.h"
 #include "protocol/dataset_json.h"
 #include "protocol/frame_header.h"
+#include "render/area_resample.h"
 #include "render/camera.h"
+#include "session/session_registry.h"
+#include "session/view_store.h"
+#include "util/random_token.h"
 #include "volume/value_map.h"
 
 namespace octoscope::session {
 namespace {
 
+using protocol::Role;
 using protocol::ViewId;
 constexpr ViewId kAllViews[] = {ViewId::k3d, ViewId::kX, ViewId::kY, ViewId::kZ};
 // Outbox views of screenshots: beyond the four views, one per screenshot id modulo this.
 constexpr int kScreenshotViewBase = 16;
 constexpr int kScreenshotViewCount = 64;
+constexpr char kViewersCannotDrive[] = "viewers cannot drive the view";
 
 size_t Index(ViewId view) { return static_cast<size_t>(view); }
 
@@ -38,59 +44,195 @@ std::array<double, 3> Clamped(const std::array<double, 3>& p, const std::array<d
   return {std::clamp(p[0], 0.0, hi[0]), std::clamp(p[1], 0.0, hi[1]), std::clamp(p[2], 0.0, hi[2])};
 }
 
+bool SameSize(const protocol::PixelSize& a, const protocol::PixelSize& b) {
+  return a.width == b.width && a.height == b.height;
+}
+
+// Messages that change the shared state: refused for viewers.
+bool Drives(const protocol::ClientMessage& m) {
+  return std::holds_alternative<protocol::OpenMessage>(m) ||
+         std::holds_alternative<protocol::CameraMessage>(m) ||
+         std::holds_alternative<protocol::ParamsMessage>(m) ||
+         std::holds_alternative<protocol::SlicesMessage>(m) ||
+         std::holds_alternative<protocol::InteractionMessage>(m);
+}
+
+bool OwnerOnly(const protocol::ClientMessage& m) {
+  return std::holds_alternative<protocol::ShareCreateMessage>(m) ||
+         std::holds_alternative<protocol::ShareRevokeMessage>(m) ||
+         std::holds_alternative<protocol::ParticipantRoleMessage>(m) ||
+         std::holds_alternative<protocol::KickMessage>(m);
+}
+
+int64_t UnixNow() {
+  return std::chrono::duration_cast<std::chrono::seconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
 }  // namespace
 
 std::shared_ptr<ViewSession> ViewSession::Create(const SessionContext& context,
-                                                 std::shared_ptr<SessionSink> sink,
-                                                 std::string session_id,
+                                                 std::string session_id, std::string resume_key,
                                                  const ViewSessionOptions& options) {
-  auto session = std::shared_ptr<ViewSession>(
-      new ViewSession(context, std::move(sink), std::move(session_id), options));
-  if (context.metrics != nullptr) context.metrics->SessionOpened();
-  return session;
+  return std::shared_ptr<ViewSession>(
+      new ViewSession(context, std::move(session_id), std::move(resume_key), options));
 }
 
-ViewSession::ViewSession(const SessionContext& context, std::shared_ptr<SessionSink> sink,
-                         std::string id, const ViewSessionOptions& options)
+ViewSession::ViewSession(const SessionContext& context, std::string id, std::string resume_key,
+                         const ViewSessionOptions& options)
     : context_(context),
       options_(options),
       id_(std::move(id)),
-      sink_(std::move(sink)),
-      outbox_(
-          [sink = sink_, metrics = context.metrics](std::vector<uint8_t> bytes) {
-            if (metrics != nullptr && bytes.size() > 25 && bytes[25] <= 3) {
-              metrics->FrameSent(static_cast<protocol::FrameTier>(bytes[25]), bytes.size());
-            }
-            sink->SendBinary(std::move(bytes));
-          },
-          options.window),
-      jpeg_interactive_(options.jpeg_interactive),
-      jpeg_final_(options.jpeg_final) {
-  for (ViewId v : kAllViews) {
-    views_[Index(v)].id = v;
-    views_[Index(v)].policy = FramePolicy(context.frame_policy);
-  }
+      resume_key_(std::move(resume_key)),
+      empty_since_(Clock::now()) {
+  for (ViewId v : kAllViews) views_[Index(v)].id = v;
 }
 
 ViewSession::~ViewSession() { Close(); }
 
-void ViewSession::Close() {
+size_t ViewSession::participant_count() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return participants_.size();
+}
+
+bool ViewSession::closed() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return closed_;
+}
+
+std::optional<Clock::time_point> ViewSession::empty_since() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return empty_since_;
+}
+
+OutboxStats ViewSession::outbox_stats(std::string_view participant) const {
+  std::shared_ptr<Participant> p;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    p = FindLocked(participant);
+  }
+  return p != nullptr ? p->outbox().stats() : OutboxStats{};
+}
+
+Result<std::string> ViewSession::Join(std::shared_ptr<SessionSink> sink, JoinOptions options) {
+  std::vector<render::ViewId> to_close;
+  std::string id;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return FailedPreconditionError("the session was released");
+    if (options.role == Role::kOwner) {
+      // The owner reattaches: an owner connection still attached gives way.
+      std::vector<std::shared_ptr<Participant>> owners;
+      for (const auto& p : participants_) {
+        if (p->role == Role::kOwner) owners.push_back(p);
+      }
+      for (const auto& p : owners) RemoveLocked(p, 4002, "resumed elsewhere", &to_close);
+    }
+    if (participants_.size() >= static_cast<size_t>(std::max(1, context_.max_participants))) {
+      return ResourceExhaustedError("session full");
+    }
+    auto p = std::make_shared<Participant>(next_participant_++, std::move(sink), context_.metrics,
+                                           options_.window);
+    p->role = options.role;
+    p->name = !options.name.empty() ? options.name
+                                    : std::string(protocol::RoleName(options.role)) + " " +
+                                          std::to_string(p->number());
+    p->share_token = std::move(options.share_token);
+    p->preferences.jpeg_interactive = options_.jpeg_interactive;
+    p->preferences.jpeg_final = options_.jpeg_final;
+    participants_.push_back(p);
+    if (participants_.size() == 1 && context_.metrics != nullptr) context_.metrics->SessionOpened();
+    empty_since_.reset();
+    id = p->id();
+    BroadcastParticipantsLocked(false);
+  }
+  for (render::ViewId view : to_close) context_.renderer->CloseView(view);
+  return id;
+}
+
+void ViewSession::Leave(std::string_view participant) {
+  std::vector<render::ViewId> to_close;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto p = FindLocked(participant);
+    if (p == nullptr) return;
+    RemoveLocked(p, 0, "", &to_close);
+  }
+  for (render::ViewId view : to_close) context_.renderer->CloseView(view);
+}
+
+void ViewSession::RemoveLocked(const std::shared_ptr<Participant>& p, uint16_t code,
+                               const std::string& reason, std::vector<render::ViewId>* to_close) {
+  if (p->left) return;
+  p->left = true;
+  std::erase(participants_, p);
+  if (code != 0) p->sink().Close(code, reason);
+  p->outbox().Close();
+  if (p->stats_timer) context_.timers->Cancel(*p->stats_timer);
+  p->stats_timer.reset();
+  if (context_.metrics != nullptr) {
+    context_.metrics->FramesDropped(p->outbox().stats().dropped - p->last_stats.dropped);
+  }
+  // Its screenshots are dropped with it (their views close outside the lock).
+  for (auto it = screenshots_.begin(); it != screenshots_.end();) {
+    if (it->participant == p) {
+      to_close->push_back(it->render_view);
+      it = screenshots_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  for (int k = 0; k < protocol::kViewCount + kScreenshotViewBase + kScreenshotViewCount; ++k) {
+    context_.encoders->Forget(reinterpret_cast<uintptr_t>(p.get()) + k);
+  }
+  if (last_changer_ == p->number()) last_changer_ = 0;
+  if (participants_.empty()) {
+    empty_since_ = Clock::now();
+    if (context_.metrics != nullptr) context_.metrics->SessionClosed();
+  }
+  const auto now = Clock::now();
+  for (View& view : views_) RegroupViewLocked(view, now, to_close);
+  // Interaction of the one who left ends with it.
+  const bool interacting = AnyInteractingLocked();
+  if (interacting != interacting_) {
+    interacting_ = interacting;
+    for (View& view : views_) {
+      for (Group& g : view.groups) g.policy.OnInteraction(interacting, now);
+    }
+  }
+  BroadcastParticipantsLocked(false);
+  PumpLocked();
+}
+
+void ViewSession::Close(uint16_t code, std::string reason) {
   std::vector<render::ViewId> to_close;
   std::vector<TimerQueue::TimerId> timers;
+  std::vector<std::string> tokens;
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return;
+    std::vector<std::shared_ptr<Participant>> everyone = participants_;
+    for (const auto& p : everyone) RemoveLocked(p, code, reason, &to_close);
     closed_ = true;
     for (View& view : views_) {
-      if (view.render_view != 0) to_close.push_back(view.render_view);
-      view.render_view = 0;
+      for (Group& g : view.groups) {
+        if (g.render_view != 0) to_close.push_back(g.render_view);
+      }
+      view.groups.clear();
     }
     for (const Screenshot& shot : screenshots_) to_close.push_back(shot.render_view);
     screenshots_.clear();
-    for (auto* timer : {&wake_timer_, &dataset_event_timer_, &data_refresh_timer_, &stats_timer_}) {
+    for (auto* timer :
+         {&wake_timer_, &dataset_event_timer_, &data_refresh_timer_, &driving_timer_}) {
       if (*timer) timers.push_back(**timer);
       timer->reset();
     }
+    for (const Share& share : shares_) tokens.push_back(share.token);
+    shares_.clear();
+  }
+  if (context_.registry != nullptr) {
+    for (const std::string& token : tokens) context_.registry->RemoveShare(token);
   }
   // Outside mu_: CloseView waits for a callback of the view, which may be waiting for mu_.
   for (render::ViewId view : to_close) context_.renderer->CloseView(view);
@@ -99,159 +241,449 @@ void ViewSession::Close() {
   {
     std::lock_guard<std::mutex> lock(mu_);
     subscription = std::move(dataset_subscription_);
+    dataset_.reset();
   }
   subscription.Reset();
-  const auto base = reinterpret_cast<uintptr_t>(this);
-  for (int k = 0; k < kScreenshotViewBase + kScreenshotViewCount; ++k) {
-    context_.encoders->Forget(base + k);
-  }
-  outbox_.Close();
-  if (context_.metrics != nullptr) {
-    context_.metrics->FramesDropped(outbox_.stats().dropped - last_stats_.dropped);
-    context_.metrics->SessionClosed();
-  }
 }
 
-void ViewSession::HandleText(std::string_view text) {
+std::shared_ptr<Participant> ViewSession::FindLocked(std::string_view id) const {
+  for (const auto& p : participants_) {
+    if (p->id() == id) return p;
+  }
+  return nullptr;
+}
+
+std::shared_ptr<Participant> ViewSession::FindLocked(uint64_t number) const {
+  for (const auto& p : participants_) {
+    if (p->number() == number) return p;
+  }
+  return nullptr;
+}
+
+void ViewSession::HandleText(std::string_view participant, std::string_view text) {
+  std::shared_ptr<Participant> from;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return;
+    from = FindLocked(participant);
+  }
+  if (from == nullptr) return;
   std::string type;
   auto message = protocol::ParseClientMessage(text, &type);
   if (message.ok()) {
-    OnMessage(std::move(*message));
+    OnMessage(from, std::move(*message));
     return;
   }
   bool fatal;
   {
     std::lock_guard<std::mutex> lock(mu_);
-    fatal = ++malformed_ > protocol::kMaxMalformedMessages;
+    fatal = ++from->malformed > protocol::kMaxMalformedMessages;
   }
-  SendError(message.status().message(), type, fatal);
-  if (fatal) sink_->Close(1008, "too many malformed messages");
+  SendError(*from, message.status().message(), type, fatal);
+  if (fatal) from->sink().Close(1008, "too many malformed messages");
 }
 
-void ViewSession::SendError(std::string_view message, std::string_view request, bool fatal) {
-  sink_->SendText(protocol::ErrorEvent(message, request, fatal));
+void ViewSession::SendError(Participant& to, std::string_view message, std::string_view request,
+                            bool fatal) {
+  to.sink().SendText(protocol::ErrorEvent(message, request, fatal));
 }
 
-void ViewSession::OnMessage(protocol::ClientMessage message) {
+void ViewSession::SendAllLocked(const std::string& text, const Participant* except) {
+  for (const auto& p : participants_) {
+    if (p.get() != except) p->sink().SendText(text);
+  }
+}
+
+void ViewSession::SendErrorAllLocked(std::string_view message, std::string_view request) {
+  SendAllLocked(protocol::ErrorEvent(message, request, false));
+}
+
+void ViewSession::OnMessage(const std::shared_ptr<Participant>& from,
+                            protocol::ClientMessage message) {
   const std::string type(protocol::MessageTypeName(message));
   if (auto* hello = std::get_if<protocol::HelloMessage>(&message)) {
-    (void)hello;
-    sink_->SendText(protocol::WelcomeEvent(context_.server_version, id_));
-    return;
-  }
-  if (auto* open = std::get_if<protocol::OpenMessage>(&message)) {
-    OnOpen(*open);
+    OnHello(from, *hello);
     return;
   }
   if (auto* ping = std::get_if<protocol::PingMessage>(&message)) {
-    sink_->SendText(protocol::PongEvent(ping->t));
+    from->sink().SendText(protocol::PongEvent(ping->t));
     return;
   }
   if (auto* ack = std::get_if<protocol::AckMessage>(&message)) {
-    outbox_.OnAck(ack->frame);
+    from->outbox().OnAck(ack->frame);
     return;
   }
+  if (std::holds_alternative<protocol::ViewSaveMessage>(message)) {
+    OnViewSave(from);
+    return;
+  }
+  Role role;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    role = from->role;
+  }
+  if (OwnerOnly(message)) {
+    if (role != Role::kOwner) {
+      SendError(*from, "only the owner may send " + type, type, false);
+      return;
+    }
+    OnOwnerMessage(from, message);
+    return;
+  }
+  if (role == Role::kViewer && Drives(message)) {
+    SendError(*from, kViewersCannotDrive, type, false);
+    return;
+  }
+  if (auto* open = std::get_if<protocol::OpenMessage>(&message)) {
+    if (!open->view.empty()) {
+      if (context_.views == nullptr) {
+        SendError(*from, "view links are not available on this server", type, false);
+        return;
+      }
+      // The stored document is read off the I/O thread.
+      context_.encoders->Submit(reinterpret_cast<uintptr_t>(from.get()) + protocol::kViewCount + 1,
+                                [weak = weak_from_this(), from, view = open->view] {
+                                  auto self = weak.lock();
+                                  if (self == nullptr) return;
+                                  auto link = self->context_.views->Load(view);
+                                  if (!link.ok()) {
+                                    self->SendError(*from, link.status().message(), "open", false);
+                                    return;
+                                  }
+                                  self->OnOpen(from, link->dataset, link->state, true);
+                                });
+      return;
+    }
+    OnOpen(from, open->dataset, open->state, false);
+    return;
+  }
+  std::vector<render::ViewId> to_close;
   std::unique_lock<std::mutex> lock(mu_);
-  if (closed_) return;
+  if (closed_ || from->left) return;
   const auto now = Clock::now();
   if (auto* interaction = std::get_if<protocol::InteractionMessage>(&message)) {
-    for (View& view : views_) view.policy.OnInteraction(interaction->active, now);
+    from->interacting = interaction->active;
+    const bool interacting = AnyInteractingLocked();
+    if (interacting != interacting_ || interaction->active) {
+      interacting_ = interacting;
+      for (View& view : views_) {
+        for (Group& g : view.groups) g.policy.OnInteraction(interacting, now);
+      }
+    }
+    BroadcastParticipantsLocked(false);
     PumpLocked();
     return;
   }
   if (auto* quality = std::get_if<protocol::QualityMessage>(&message)) {
-    if (quality->jpeg_interactive) jpeg_interactive_ = *quality->jpeg_interactive;
-    if (quality->jpeg_final) jpeg_final_ = *quality->jpeg_final;
-    if (quality->lossless_final) lossless_final_ = *quality->lossless_final;
-    if (quality->lod_bias && *quality->lod_bias != lod_bias_) {
-      lod_bias_ = *quality->lod_bias;
-      if (state_) ChangedLocked({ViewId::k3d, ViewId::kX, ViewId::kY, ViewId::kZ});
-    }
-    return;
-  }
-  if (auto* viewport = std::get_if<protocol::ViewportMessage>(&message)) {
-    View& view = views_[Index(viewport->view)];
-    const protocol::PixelSize pixels = protocol::ViewportPixels(*viewport);
-    if (pixels.width != view.pixels.width || pixels.height != view.pixels.height) {
-      view.pixels = pixels;
-      view.policy.Invalidate(now);
+    ParticipantPreferences& prefs = from->preferences;
+    if (quality->jpeg_interactive) prefs.jpeg_interactive = *quality->jpeg_interactive;
+    if (quality->jpeg_final) prefs.jpeg_final = *quality->jpeg_final;
+    if (quality->lossless_final) prefs.lossless_final = *quality->lossless_final;
+    if (quality->lod_bias && *quality->lod_bias != prefs.lod_bias) {
+      prefs.lod_bias = *quality->lod_bias;
+      for (View& view : views_) RegroupViewLocked(view, now, &to_close);
       PumpLocked();
     }
-    return;
-  }
-  if (!state_ || dataset_ == nullptr) {
+  } else if (auto* viewport = std::get_if<protocol::ViewportMessage>(&message)) {
+    const protocol::PixelSize pixels = protocol::ViewportPixels(*viewport);
+    protocol::PixelSize& mine = from->pixels[Index(viewport->view)];
+    if (!SameSize(pixels, mine)) {
+      mine = pixels;
+      RegroupViewLocked(views_[Index(viewport->view)], now, &to_close);
+      PumpLocked();
+    }
+  } else if (!state_ || dataset_ == nullptr) {
     lock.unlock();
-    SendError("no dataset is open (send \"open\" first)", type, false);
+    SendError(*from, "no dataset is open (send \"open\" first)", type, false);
     return;
-  }
-  if (auto* camera = std::get_if<protocol::CameraMessage>(&message)) {
+  } else if (auto* camera = std::get_if<protocol::CameraMessage>(&message)) {
     state_->camera = camera->camera;
-    ChangedLocked({ViewId::k3d});
-    return;
-  }
-  if (auto* params = std::get_if<protocol::ParamsMessage>(&message)) {
+    ChangedLocked({ViewId::k3d}, from.get());
+  } else if (auto* params = std::get_if<protocol::ParamsMessage>(&message)) {
     auto applied = protocol::ApplyParams(params->params_json, state_->params);
     if (!applied.ok()) {
       lock.unlock();
-      SendError(applied.status().message(), type, false);
+      SendError(*from, applied.status().message(), type, false);
       return;
     }
     state_->params = std::move(*applied);
-    auto_contrast_pending_ = false;  // The client chose its own parameters.
-    ChangedLocked({ViewId::k3d, ViewId::kX, ViewId::kY, ViewId::kZ});
-    return;
-  }
-  if (auto* slices = std::get_if<protocol::SlicesMessage>(&message)) {
+    auto_contrast_pending_ = false;  // A participant chose its own parameters.
+    ChangedLocked({ViewId::k3d, ViewId::kX, ViewId::kY, ViewId::kZ}, from.get());
+  } else if (auto* slices = std::get_if<protocol::SlicesMessage>(&message)) {
     const auto clamped = Clamped(slices->position_um, Extent(dataset_->dataset()));
     state_->slice_position_um = clamped;
-    ChangedLocked({ViewId::kX, ViewId::kY, ViewId::kZ});
+    ChangedLocked({ViewId::kX, ViewId::kY, ViewId::kZ}, from.get());
     if (clamped != slices->position_um) {
-      sink_->SendText(protocol::StateEvent(*state_, state_version_));
+      from->sink().SendText(protocol::StateEvent(*state_, state_version_));
     }
-    return;
-  }
-  if (auto* shot = std::get_if<protocol::ScreenshotMessage>(&message)) {
-    const View& view = views_[Index(shot->view)];
+  } else if (auto* shot = std::get_if<protocol::ScreenshotMessage>(&message)) {
+    const protocol::PixelSize pixels = from->pixels[Index(shot->view)];
     const auto key = dataset_->render_key();
-    if (!key || view.pixels.width == 0) {
+    if (!key || pixels.width == 0) {
       lock.unlock();
-      SendError(key ? "the view has no viewport (send \"viewport\" first)"
+      SendError(*from,
+                key ? "the view has no viewport (send \"viewport\" first)"
                     : "the dataset cannot be rendered yet",
                 type, false);
       return;
     }
     const uint32_t id = shot->id;
     auto render_view = context_.renderer->OpenView(
-        *key, [weak = weak_from_this(), id](render::FrameResult result) {
-          if (auto self = weak.lock()) self->OnScreenshotResult(id, std::move(result));
+        *key, [weak = weak_from_this(), id, number = from->number()](render::FrameResult result) {
+          if (auto self = weak.lock()) self->OnScreenshotResult(id, number, std::move(result));
         });
     if (!render_view.ok()) {
       lock.unlock();
-      SendError(render_view.status().message(), type, false);
+      SendError(*from, render_view.status().message(), type, false);
       return;
     }
-    FrameOrder order{1, true, static_cast<double>(shot->scale), view.content_version};
-    auto request = RequestLocked(view, order);
+    FrameOrder order{1, true, static_cast<double>(shot->scale), 0};
+    FramePolicy policy(context_.frame_policy);
+    auto request = RequestLocked(shot->view, pixels, from->preferences.lod_bias, policy, order);
     Status submitted = request.ok() ? Status::Ok() : request.status();
     if (request.ok()) {
       request->progress_images = false;
-      screenshots_.push_back({id, shot->view, *render_view, state_version_});
+      screenshots_.push_back({id, shot->view, *render_view, state_version_, from});
       submitted = context_.renderer->Submit(*render_view, std::move(*request));
     }
     if (!submitted.ok()) {
-      std::erase_if(screenshots_, [&](const Screenshot& s) { return s.id == id; });
+      std::erase_if(screenshots_,
+                    [&](const Screenshot& s) { return s.id == id && s.participant == from; });
       lock.unlock();
       context_.renderer->CloseView(*render_view);
-      SendError(submitted.message(), type, false);
+      SendError(*from, submitted.message(), type, false);
     }
     return;
   }
+  lock.unlock();
+  for (render::ViewId view : to_close) context_.renderer->CloseView(view);
 }
 
-void ViewSession::OnOpen(const protocol::OpenMessage& message) {
-  auto use = context_.datasets->Use(message.dataset);
+void ViewSession::OnHello(const std::shared_ptr<Participant>& from,
+                          const protocol::HelloMessage& hello) {
+  std::optional<protocol::ViewLink> pending;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_ || from->left) return;
+    if (!hello.name.empty()) from->name = hello.name;
+    from->welcomed = true;
+    from->sink().SendText(protocol::WelcomeEvent(
+        context_.server_version, id_, from->id(), from->role,
+        from->role == Role::kOwner ? std::string_view(resume_key_) : std::string_view()));
+    if (state_ && dataset_ != nullptr) {
+      from->sink().SendText(protocol::OpenedEvent(DatasetJsonLocked(), *state_, state_version_));
+    }
+    if (from->role == Role::kOwner) SendSharesLocked();
+    BroadcastParticipantsLocked(true);
+    if (pending_view_ && pending_view_->first == from->id()) {
+      pending = std::move(pending_view_->second);
+      pending_view_.reset();
+    }
+  }
+  if (pending) OnOpen(from, pending->dataset, pending->state, true);
+}
+
+void ViewSession::OpenViewLink(std::string_view participant, protocol::ViewLink link) {
+  std::shared_ptr<Participant> from;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return;
+    from = FindLocked(participant);
+    if (from == nullptr) return;
+    if (!from->welcomed) {
+      // Opened right after the welcome, so that the client sees `welcome` first.
+      pending_view_.emplace(from->id(), std::move(link));
+      return;
+    }
+  }
+  OnOpen(from, link.dataset, link.state, true);
+}
+
+void ViewSession::OnOwnerMessage(const std::shared_ptr<Participant>& from,
+                                 const protocol::ClientMessage& message) {
+  const std::string type(protocol::MessageTypeName(message));
+  std::vector<render::ViewId> to_close;
+  std::unique_lock<std::mutex> lock(mu_);
+  if (closed_ || from->left) return;
+  if (auto* create = std::get_if<protocol::ShareCreateMessage>(&message)) {
+    if (context_.registry == nullptr) {
+      lock.unlock();
+      SendError(*from, "share links are not available on this server", type, false);
+      return;
+    }
+    auto token = RandomHex(16);
+    if (!token.ok()) {
+      lock.unlock();
+      SendError(*from, token.status().message(), type, false);
+      return;
+    }
+    Share share{*token, create->role, std::nullopt};
+    std::optional<std::chrono::system_clock::time_point> expires;
+    if (create->ttl_s) {
+      share.expires_unix_s = UnixNow() + *create->ttl_s;
+      expires = std::chrono::system_clock::now() + std::chrono::seconds(*create->ttl_s);
+    }
+    context_.registry->AddShare(share.token, weak_from_this(), share.role, expires);
+    shares_.push_back(share);
+    from->sink().SendText(protocol::ShareCreatedEvent(
+        {share.token, share.role, LinkUrl("share", share.token), share.expires_unix_s, 0}));
+    SendSharesLocked();
+    return;
+  }
+  if (auto* revoke = std::get_if<protocol::ShareRevokeMessage>(&message)) {
+    auto it = std::find_if(shares_.begin(), shares_.end(),
+                           [&](const Share& s) { return s.token == revoke->token; });
+    if (it == shares_.end()) {
+      lock.unlock();
+      SendError(*from, "no such share link in this session", type, false);
+      return;
+    }
+    const std::string token = it->token;
+    shares_.erase(it);
+    if (context_.registry != nullptr) context_.registry->RemoveShare(token);
+    std::vector<std::shared_ptr<Participant>> joined;
+    for (const auto& p : participants_) {
+      if (p->share_token == token) joined.push_back(p);
+    }
+    for (const auto& p : joined) RemoveLocked(p, 4001, "share link revoked", &to_close);
+    SendSharesLocked();
+  } else if (auto* change = std::get_if<protocol::ParticipantRoleMessage>(&message)) {
+    auto target = FindLocked(std::string_view(change->participant));
+    if (target == nullptr || target->role == Role::kOwner) {
+      lock.unlock();
+      SendError(*from,
+                target == nullptr ? "no participant \"" + change->participant + "\""
+                                  : std::string("the owner's role cannot change"),
+                type, false);
+      return;
+    }
+    target->role = change->role;
+    if (change->role == Role::kViewer && target->interacting) {
+      target->interacting = false;
+      const bool interacting = AnyInteractingLocked();
+      if (interacting != interacting_) {
+        interacting_ = interacting;
+        const auto now = Clock::now();
+        for (View& view : views_) {
+          for (Group& g : view.groups) g.policy.OnInteraction(interacting, now);
+        }
+      }
+    }
+    BroadcastParticipantsLocked(true);
+    PumpLocked();
+  } else if (auto* kick = std::get_if<protocol::KickMessage>(&message)) {
+    auto target = FindLocked(std::string_view(kick->participant));
+    if (target == nullptr || target == from) {
+      lock.unlock();
+      SendError(*from,
+                target == nullptr ? "no participant \"" + kick->participant + "\""
+                                  : std::string("the owner cannot remove itself"),
+                type, false);
+      return;
+    }
+    RemoveLocked(target, 4003, "removed from the session", &to_close);
+    SendSharesLocked();
+  }
+  lock.unlock();
+  for (render::ViewId view : to_close) context_.renderer->CloseView(view);
+}
+
+void ViewSession::OnViewSave(const std::shared_ptr<Participant>& from) {
+  std::string dataset_id;
+  std::optional<protocol::ViewState> state;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_ || from->left) return;
+    if (!state_ || dataset_ == nullptr) {
+      SendError(*from, "no dataset is open (send \"open\" first)", "view_save", false);
+      return;
+    }
+    dataset_id = dataset_->dataset().id();
+    state = *state_;
+  }
+  if (context_.views == nullptr) {
+    SendError(*from, "view links are not available on this server", "view_save", false);
+    return;
+  }
+  // The durable write (fsync) runs off the I/O thread.
+  context_.encoders->Submit(
+      reinterpret_cast<uintptr_t>(from.get()) + protocol::kViewCount + 2,
+      [weak = weak_from_this(), from, dataset_id, state = std::move(state)] {
+        auto self = weak.lock();
+        if (self == nullptr) return;
+        auto id = self->context_.views->Save(dataset_id, *state);
+        if (!id.ok()) {
+          self->SendError(*from, id.status().message(), "view_save", false);
+          return;
+        }
+        from->sink().SendText(protocol::ViewSavedEvent(*id, self->LinkUrl("view", *id)));
+      });
+}
+
+std::string ViewSession::LinkUrl(std::string_view key, std::string_view value) const {
+  const std::string base = context_.link_base != nullptr ? context_.link_base->Get() : "/";
+  return base + "?" + std::string(key) + "=" + std::string(value);
+}
+
+void ViewSession::SendSharesLocked() {
+  std::vector<protocol::ShareInfo> infos;
+  for (const Share& share : shares_) {
+    int joined = 0;
+    for (const auto& p : participants_) joined += p->share_token == share.token;
+    infos.push_back(
+        {share.token, share.role, LinkUrl("share", share.token), share.expires_unix_s, joined});
+  }
+  const std::string text = protocol::SharesEvent(infos);
+  for (const auto& p : participants_) {
+    if (p->role == Role::kOwner && p->welcomed) p->sink().SendText(text);
+  }
+}
+
+std::vector<protocol::ParticipantInfo> ViewSession::ParticipantsLocked(
+    Clock::time_point now) const {
+  std::vector<protocol::ParticipantInfo> infos;
+  for (const auto& p : participants_) {
+    const bool recent = last_changer_ == p->number() && now - last_change_ < options_.driving_hold;
+    infos.push_back({p->id(), p->name, p->role, p->interacting || recent});
+  }
+  return infos;
+}
+
+void ViewSession::BroadcastParticipantsLocked(bool force) {
+  const auto now = Clock::now();
+  const auto infos = ParticipantsLocked(now);
+  std::vector<std::string> summary;
+  for (const auto& i : infos) {
+    summary.push_back(i.id + ":" + std::string(protocol::RoleName(i.role)) + ":" + i.name +
+                      (i.driving ? ":1" : ":0"));
+  }
+  if (!force && summary == last_participants_sent_) return;
+  last_participants_sent_ = summary;
+  for (const auto& p : participants_) {
+    if (p->welcomed) p->sink().SendText(protocol::ParticipantsEvent(infos, p->id()));
+  }
+}
+
+void ViewSession::MarkDrivingLocked(Participant* from) {
+  if (from == nullptr) return;
+  last_changer_ = from->number();
+  last_change_ = Clock::now();
+  BroadcastParticipantsLocked(false);
+  // When the hold ends the marker goes (unless the participant keeps changing the state).
+  if (driving_timer_) {
+    context_.timers->Cancel(*driving_timer_);
+    driving_timer_.reset();
+  }
+  ArmTimerLocked(&driving_timer_,
+                 last_change_ + options_.driving_hold + std::chrono::milliseconds(10),
+                 [](ViewSession& s) { s.BroadcastParticipantsLocked(false); });
+}
+
+void ViewSession::OnOpen(const std::shared_ptr<Participant>& from, const std::string& dataset_id,
+                         const std::optional<protocol::StateUpdate>& update, bool exact) {
+  auto use = context_.datasets->Use(dataset_id);
   if (!use.ok()) {
-    SendError(use.status().message(), "open", false);
+    SendError(*from, use.status().message(), "open", false);
     return;
   }
   const dataset::Dataset& dataset = (*use)->dataset();
@@ -265,7 +697,7 @@ void ViewSession::OnOpen(const protocol::OpenMessage& message) {
   auto camera = render::Camera::Standard(render::StandardView::kIso,
                                          render::Projection::kPerspective, bounds, 1, 1);
   if (!camera.ok()) {
-    SendError(camera.status().message(), "open", false);
+    SendError(*from, camera.status().message(), "open", false);
     return;
   }
   protocol::ViewState state{*camera,
@@ -276,32 +708,39 @@ void ViewSession::OnOpen(const protocol::OpenMessage& message) {
   const auto extent = Extent(dataset);
   state.slice_position_um = {extent[0] / 2, extent[1] / 2, extent[2] / 2};
   bool client_params = false;
-  if (message.state) {
-    const protocol::StateUpdate& update = *message.state;
-    if (update.camera) state.camera = *update.camera;
-    if (update.params_json) {
-      auto params = protocol::ApplyParams(*update.params_json, state.params);
+  if (update) {
+    if (update->camera) state.camera = *update->camera;
+    if (update->params_json) {
+      auto params = protocol::ApplyParams(*update->params_json, state.params);
       if (!params.ok()) {
-        SendError("state.params: " + params.status().message(), "open", false);
+        SendError(*from, "state.params: " + params.status().message(), "open", false);
         return;
       }
       state.params = std::move(*params);
       client_params = true;
     }
-    if (update.slice_position_um) {
-      state.slice_position_um = Clamped(*update.slice_position_um, extent);
+    if (update->slice_position_um) {
+      state.slice_position_um = Clamped(*update->slice_position_um, extent);
     }
-    if (update.layout) state.maximized = update.layout->maximized;
+    if (update->layout) state.maximized = update->layout->maximized;
   }
+  (void)exact;  // A view link holds every part: the state above is exactly the stored one.
 
   std::vector<render::ViewId> to_close;
   dataset::Subscription old_subscription;
   {
     std::lock_guard<std::mutex> lock(mu_);
-    if (closed_) return;
+    if (closed_ || from->left) return;
+    if (from->role == Role::kViewer) {
+      // Demoted while the view link was being read.
+      SendError(*from, kViewersCannotDrive, "open", false);
+      return;
+    }
     for (View& view : views_) {
-      if (view.render_view != 0) to_close.push_back(view.render_view);
-      view.render_view = 0;
+      for (Group& g : view.groups) {
+        if (g.render_view != 0) to_close.push_back(g.render_view);
+        g.render_view = 0;
+      }
     }
     old_subscription = std::move(dataset_subscription_);
     dataset_ = *use;
@@ -309,8 +748,16 @@ void ViewSession::OnOpen(const protocol::OpenMessage& message) {
     auto_contrast_pending_ = !client_params && !dataset.status().histogram_complete;
     seen_planes_ = dataset.status().planes_inserted;
     ++state_version_;
-    sink_->SendText(protocol::OpenedEvent(DatasetJsonLocked(), *state_, state_version_));
-    for (View& view : views_) view.policy.OnChange(++view.content_version, Clock::now());
+    const std::string opened = protocol::OpenedEvent(DatasetJsonLocked(), *state_, state_version_);
+    for (const auto& p : participants_) {
+      if (p->welcomed || p == from) p->sink().SendText(opened);
+    }
+    const auto now = Clock::now();
+    for (View& view : views_) {
+      ++view.content_version;
+      for (Group& g : view.groups) g.policy.OnChange(view.content_version, now);
+    }
+    MarkDrivingLocked(from.get());
     AttachRenderViewsLocked();
     PumpLocked();
   }
@@ -324,36 +771,105 @@ void ViewSession::OnOpen(const protocol::OpenMessage& message) {
   if (!closed_ && dataset_ == *use) dataset_subscription_ = std::move(subscription);
 }
 
-void ViewSession::ChangedLocked(std::initializer_list<ViewId> views) {
+void ViewSession::ChangedLocked(std::initializer_list<ViewId> views, Participant* from) {
   ++state_version_;
   const auto now = Clock::now();
   for (ViewId v : views) {
     View& view = views_[Index(v)];
-    view.policy.OnChange(++view.content_version, now);
+    ++view.content_version;
+    for (Group& g : view.groups) g.policy.OnChange(view.content_version, now);
   }
+  // The others follow: their UI shows the new state.
+  const std::string event =
+      protocol::StateEvent(*state_, state_version_, from != nullptr ? from->id() : "");
+  for (const auto& p : participants_) {
+    if (p.get() != from && p->welcomed) p->sink().SendText(event);
+  }
+  MarkDrivingLocked(from);
   PumpLocked();
 }
 
+bool ViewSession::AnyInteractingLocked() const {
+  return std::any_of(participants_.begin(), participants_.end(),
+                     [](const auto& p) { return p->interacting && p->role != Role::kViewer; });
+}
+
+void ViewSession::RegroupViewLocked(View& view, Clock::time_point now,
+                                    std::vector<render::ViewId>* to_close) {
+  std::vector<GroupMember> members;
+  for (const auto& p : participants_) {
+    const protocol::PixelSize pixels = p->pixels[Index(view.id)];
+    if (pixels.width > 0) members.push_back({p->number(), pixels, p->preferences.lod_bias});
+  }
+  const std::vector<AspectGroup> wanted = GroupByAspect(std::move(members));
+  std::vector<Group> old = std::move(view.groups);
+  view.groups.clear();
+  std::vector<bool> used(old.size(), false);
+  for (const AspectGroup& w : wanted) {
+    // Keep the render view and frame policy of a group of the same aspect and bias.
+    size_t match = old.size();
+    for (size_t i = 0; i < old.size(); ++i) {
+      if (!used[i] && old[i].lod_bias == w.lod_bias && SameAspect(old[i].pixels, w.pixels)) {
+        match = i;
+        break;
+      }
+    }
+    Group group;
+    if (match < old.size()) {
+      used[match] = true;
+      group = std::move(old[match]);
+      // A new size or a new member: a new frame is due even without a change.
+      if (!SameSize(group.pixels, w.pixels) || group.members != w.members) {
+        group.policy.Invalidate(now);
+      }
+    } else {
+      group.key = next_group_key_++;
+      group.policy = FramePolicy(context_.frame_policy);
+      if (view.content_version > 0) group.policy.OnChange(view.content_version, now);
+      if (interacting_) group.policy.OnInteraction(true, now);
+    }
+    group.pixels = w.pixels;
+    group.lod_bias = w.lod_bias;
+    group.members = w.members;
+    view.groups.push_back(std::move(group));
+  }
+  for (size_t i = 0; i < old.size(); ++i) {
+    if (!used[i] && old[i].render_view != 0) to_close->push_back(old[i].render_view);
+  }
+  AttachRenderViewsLocked();
+}
+
 void ViewSession::AttachRenderViewsLocked() {
-  if (dataset_ == nullptr) return;
+  if (dataset_ == nullptr || closed_) return;
   bool missing = false;
-  for (const View& view : views_) missing |= view.render_view == 0;
+  for (const View& view : views_) {
+    for (const Group& g : view.groups) missing |= g.render_view == 0;
+  }
   if (!missing) return;
   const auto key = dataset_->render_key();
   if (!key) return;
   for (View& view : views_) {
-    if (view.render_view != 0) continue;
-    auto opened = context_.renderer->OpenView(
-        *key, [weak = weak_from_this(), v = view.id](render::FrameResult result) {
-          if (auto self = weak.lock()) self->OnRenderResult(v, std::move(result));
-        });
-    if (!opened.ok()) {
-      SendError(opened.status().message(), "open", false);
-      return;
+    for (Group& g : view.groups) {
+      if (g.render_view != 0) continue;
+      auto opened = context_.renderer->OpenView(
+          *key, [weak = weak_from_this(), v = view.id, group = g.key](render::FrameResult result) {
+            if (auto self = weak.lock()) self->OnRenderResult(v, group, std::move(result));
+          });
+      if (!opened.ok()) {
+        SendErrorAllLocked(opened.status().message(), "open");
+        return;
+      }
+      g.render_view = *opened;
+      g.policy.Invalidate(Clock::now());
     }
-    view.render_view = *opened;
-    view.policy.Invalidate(Clock::now());
   }
+}
+
+ViewSession::Group* ViewSession::FindGroupLocked(ViewId view, uint64_t key) {
+  for (Group& g : views_[Index(view)].groups) {
+    if (g.key == key) return &g;
+  }
+  return nullptr;
 }
 
 void ViewSession::PumpLocked() {
@@ -361,52 +877,56 @@ void ViewSession::PumpLocked() {
   const auto now = Clock::now();
   std::optional<Clock::time_point> earliest;
   for (View& view : views_) {
-    if (view.render_view == 0 || view.pixels.width == 0) continue;
-    std::optional<Clock::time_point> wake;
-    PumpViewLocked(view, now, &wake);
-    if (wake && (!earliest || *wake < *earliest)) earliest = wake;
+    for (Group& g : view.groups) {
+      if (g.render_view == 0 || g.pixels.width == 0) continue;
+      std::optional<Clock::time_point> wake;
+      PumpGroupLocked(view, g, now, &wake);
+      if (wake && (!earliest || *wake < *earliest)) earliest = wake;
+    }
   }
   if (earliest) {
     ArmTimerLocked(&wake_timer_, *earliest, [](ViewSession& s) { s.PumpLocked(); });
   }
 }
 
-void ViewSession::PumpViewLocked(View& view, Clock::time_point now,
-                                 std::optional<Clock::time_point>* wake) {
-  auto order = view.policy.Poll(now, wake);
+void ViewSession::PumpGroupLocked(View& view, Group& group, Clock::time_point now,
+                                  std::optional<Clock::time_point>* wake) {
+  auto order = group.policy.Poll(now, wake);
   if (!order) return;
-  auto request = RequestLocked(view, *order);
+  auto request = RequestLocked(view.id, group.pixels, group.lod_bias, group.policy, *order);
   Status status = request.ok() ? Status::Ok() : request.status();
   if (request.ok()) {
-    view.order_sequence = order->sequence;
-    view.order_state_version = state_version_;
-    view.order_refine = order->refine;
-    view.order_submitted = now;
-    status = context_.renderer->Submit(view.render_view, std::move(*request));
+    group.order_sequence = order->sequence;
+    group.order_frame_sequence = ++frame_sequence_;
+    group.order_state_version = state_version_;
+    group.order_refine = order->refine;
+    group.order_submitted = now;
+    status = context_.renderer->Submit(group.render_view, std::move(*request));
   }
   if (!status.ok()) {
-    view.policy.OnFrameDone(order->sequence, false, 0);
-    SendError(status.message(), "render", false);
+    group.policy.OnFrameDone(order->sequence, false, 0);
+    SendErrorAllLocked(status.message(), "render");
   }
 }
 
-Result<render::FrameRequest> ViewSession::RequestLocked(const View& view,
+Result<render::FrameRequest> ViewSession::RequestLocked(ViewId view, protocol::PixelSize pixels,
+                                                        double lod_bias, const FramePolicy& policy,
                                                         const FrameOrder& order) const {
-  const int width = std::max(1, static_cast<int>(std::lround(view.pixels.width * order.scale)));
-  const int height = std::max(1, static_cast<int>(std::lround(view.pixels.height * order.scale)));
+  const int width = std::max(1, static_cast<int>(std::lround(pixels.width * order.scale)));
+  const int height = std::max(1, static_cast<int>(std::lround(pixels.height * order.scale)));
   render::FrameRequest request;
   request.params = state_->params;
   request.sequence = order.sequence;
   render::FrameOptions options;
   options.mode = order.refine ? render::FrameMode::kRefine : render::FrameMode::kFullFrame;
-  options.lod_bias = lod_bias_;
+  options.lod_bias = lod_bias;
   // Interactive frames shrink first (FramePolicy); once at the smallest scale, the renderer
   // coarsens the level of detail to hold the frame time.
-  if (!order.refine && view.policy.scale() <= context_.frame_policy.min_scale) {
+  if (!order.refine && policy.scale() <= context_.frame_policy.min_scale) {
     options.target_frame_ms = context_.frame_policy.target_frame_ms;
   }
   request.options = options;
-  if (view.id == ViewId::k3d) {
+  if (view == ViewId::k3d) {
     request.kind = render::FrameKind::kVolume;
     auto camera = protocol::CameraForSize(state_->camera, width, height);
     if (!camera.ok()) return camera.status();
@@ -414,7 +934,7 @@ Result<render::FrameRequest> ViewSession::RequestLocked(const View& view,
   } else {
     request.kind = render::FrameKind::kSlice;
     render::SliceView slice;
-    slice.axis = static_cast<int>(view.id) - 1;
+    slice.axis = static_cast<int>(view) - 1;
     slice.position_um = state_->slice_position_um[slice.axis];
     slice.width = width;
     slice.height = height;
@@ -423,28 +943,31 @@ Result<render::FrameRequest> ViewSession::RequestLocked(const View& view,
   return request;
 }
 
-void ViewSession::OnRenderResult(ViewId v, render::FrameResult result) {
-  EncodeJob job;
+void ViewSession::OnRenderResult(ViewId v, uint64_t group_key, render::FrameResult result) {
+  std::vector<EncodeJob> jobs;
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return;
-    View& view = views_[Index(v)];
-    if (result.view != view.render_view || result.sequence != view.order_sequence) return;
+    Group* group = FindGroupLocked(v, group_key);
+    if (group == nullptr || result.view != group->render_view ||
+        result.sequence != group->order_sequence) {
+      return;
+    }
     if (!result.status.ok()) {
-      if (result.final) view.policy.OnFrameDone(result.sequence, false, 0);
-      SendError(result.status.message(), "render", false);
+      if (result.final) group->policy.OnFrameDone(result.sequence, false, 0);
+      SendErrorAllLocked(result.status.message(), "render");
       PumpLocked();
       return;
     }
-    const auto tier = !view.order_refine ? protocol::FrameTier::kInteractive
-                      : result.final     ? protocol::FrameTier::kFinal
-                                         : protocol::FrameTier::kRefining;
+    const auto tier = !group->order_refine ? protocol::FrameTier::kInteractive
+                      : result.final       ? protocol::FrameTier::kFinal
+                                           : protocol::FrameTier::kRefining;
     // The policy holds the frame rate the user sees: submit to result, so that the time a frame
     // waits for other views' frames on the shared device counts too (N busy clients each shrink
     // their frames instead of each waiting N times longer).
     if (result.final) {
-      view.policy.OnFrameDone(result.sequence, true,
-                              std::max(result.stats.ms_total, Elapsed(view.order_submitted)));
+      group->policy.OnFrameDone(result.sequence, true,
+                                std::max(result.stats.ms_total, Elapsed(group->order_submitted)));
     }
     if (context_.metrics != nullptr) {
       context_.metrics->Rendered(tier, result.stats.ms_total, result.stats.bricks_uploaded);
@@ -454,49 +977,86 @@ void ViewSession::OnRenderResult(ViewId v, render::FrameResult result) {
     bool send = true;
     if (tier == protocol::FrameTier::kRefining) {
       // Progress frames at most every progress_interval: the final one is what matters.
-      send = now - view.last_progress >= options_.progress_interval;
-      if (send) view.last_progress = now;
+      send = now - group->last_progress >= options_.progress_interval;
+      if (send) group->last_progress = now;
     }
+    // Copied before PumpLocked may submit the group's next order.
+    const uint64_t frame_sequence = group->order_frame_sequence;
+    const uint64_t state_version = group->order_state_version;
+    const bool refine = group->order_refine;
+    const protocol::PixelSize group_pixels = group->pixels;
+    const std::vector<uint64_t> members = group->members;
     PumpLocked();
     if (!send || result.image.width <= 0 || result.image.height <= 0) return;
-    job.outbox_view = static_cast<int>(v);
-    job.sequence = result.sequence;
-    job.png = tier == protocol::FrameTier::kFinal && lossless_final_;
-    job.jpeg_quality = tier == protocol::FrameTier::kInteractive ? jpeg_interactive_
-                       : tier == protocol::FrameTier::kRefining  ? options_.jpeg_refining
-                                                                 : jpeg_final_;
-    protocol::FrameHeader& header = job.header;
-    header.state_version = view.order_state_version;
+    protocol::FrameHeader header;
+    header.state_version = state_version;
     header.view = v;
     header.tier = tier;
     header.final = tier == protocol::FrameTier::kFinal;
-    header.progress = view.order_refine
-                          ? static_cast<float>(std::clamp(result.stats.finished_fraction, 0.0, 1.0))
-                          : 0.f;
+    header.progress =
+        refine ? static_cast<float>(std::clamp(result.stats.finished_fraction, 0.0, 1.0)) : 0.f;
     if (header.final) header.progress = 1.f;
     header.render_ms = static_cast<float>(std::max(0.0, result.stats.ms_total));
     header.lod_bias = static_cast<float>(result.stats.lod_bias_used);
-    job.image = std::move(result.image);
+    auto image = std::make_shared<const render::RenderImage>(std::move(result.image));
+    const protocol::PixelSize rendered{image->width, image->height};
+    // One encoding per distinct (size, format, quality) among the members.
+    for (uint64_t number : members) {
+      auto p = FindLocked(number);
+      if (p == nullptr) continue;
+      const protocol::PixelSize size = MemberFrameSize(p->pixels[Index(v)], group_pixels, rendered);
+      const bool png = tier == protocol::FrameTier::kFinal && p->preferences.lossless_final;
+      const int quality = tier == protocol::FrameTier::kInteractive
+                              ? p->preferences.jpeg_interactive
+                          : tier == protocol::FrameTier::kRefining ? options_.jpeg_refining
+                                                                   : p->preferences.jpeg_final;
+      auto same = std::find_if(jobs.begin(), jobs.end(), [&](const EncodeJob& j) {
+        return SameSize(j.size, size) && j.png == png && (png || j.jpeg_quality == quality);
+      });
+      if (same == jobs.end()) {
+        EncodeJob job;
+        job.outbox_view = static_cast<int>(v);
+        job.sequence = frame_sequence;
+        job.header = header;
+        job.png = png;
+        job.jpeg_quality = quality;
+        job.size = size;
+        job.image = image;
+        jobs.push_back(std::move(job));
+        same = jobs.end() - 1;
+      }
+      same->recipients.push_back(std::move(p));
+    }
   }
-  const uint64_t key = reinterpret_cast<uintptr_t>(this) + job.outbox_view;
+  for (EncodeJob& job : jobs) SubmitEncode(std::move(job));
+}
+
+void ViewSession::SubmitEncode(EncodeJob job) {
+  // Latest image wins per (first recipient, outbox view): a newer frame of the view replaces one
+  // still waiting for an encoder.
+  const uint64_t key = reinterpret_cast<uintptr_t>(job.recipients.front().get()) + job.outbox_view;
   context_.encoders->Submit(key, [weak = weak_from_this(), job = std::move(job)]() mutable {
     if (auto self = weak.lock()) self->Encode(std::move(job));
   });
 }
 
-void ViewSession::OnScreenshotResult(uint32_t id, render::FrameResult result) {
+void ViewSession::OnScreenshotResult(uint32_t id, uint64_t participant,
+                                     render::FrameResult result) {
   if (!result.final) return;
   EncodeJob job;
   render::ViewId render_view = 0;
+  std::shared_ptr<Participant> to;
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return;
-    auto it = std::find_if(screenshots_.begin(), screenshots_.end(),
-                           [&](const Screenshot& s) { return s.id == id; });
+    auto it = std::find_if(screenshots_.begin(), screenshots_.end(), [&](const Screenshot& s) {
+      return s.id == id && s.participant->number() == participant;
+    });
     if (it == screenshots_.end()) return;
     const Screenshot shot = *it;
     screenshots_.erase(it);
     render_view = shot.render_view;
+    to = shot.participant;
     if (result.status.ok() && result.image.width > 0) {
       job.outbox_view = kScreenshotViewBase + static_cast<int>(id % kScreenshotViewCount);
       job.sequence = ++screenshot_sequence_;
@@ -510,7 +1070,9 @@ void ViewSession::OnScreenshotResult(uint32_t id, render::FrameResult result) {
       header.render_ms = static_cast<float>(std::max(0.0, result.stats.ms_total));
       header.lod_bias = static_cast<float>(result.stats.lod_bias_used);
       header.screenshot_id = id;
-      job.image = std::move(result.image);
+      job.size = {result.image.width, result.image.height};
+      job.image = std::make_shared<const render::RenderImage>(std::move(result.image));
+      job.recipients.push_back(to);
       if (context_.metrics != nullptr) {
         context_.metrics->Rendered(protocol::FrameTier::kScreenshot, result.stats.ms_total,
                                    result.stats.bricks_uploaded);
@@ -520,25 +1082,29 @@ void ViewSession::OnScreenshotResult(uint32_t id, render::FrameResult result) {
   // From the view's own callback CloseView does not wait.
   context_.renderer->CloseView(render_view);
   if (!result.status.ok()) {
-    SendError("screenshot " + std::to_string(id) + ": " + result.status.message(), "screenshot",
-              false);
+    SendError(*to, "screenshot " + std::to_string(id) + ": " + result.status.message(),
+              "screenshot", false);
     return;
   }
-  const uint64_t key = reinterpret_cast<uintptr_t>(this) + job.outbox_view;
-  context_.encoders->Submit(key, [weak = weak_from_this(), job = std::move(job)]() mutable {
-    if (auto self = weak.lock()) self->Encode(std::move(job));
-  });
+  SubmitEncode(std::move(job));
 }
 
 void ViewSession::Encode(EncodeJob job) {
   const auto start = Clock::now();
+  // Smaller participants of the group: the render area-averaged down to their size.
+  std::optional<render::RenderImage> resampled;
+  const render::RenderImage* source = job.image.get();
+  if (!SameSize(job.size, {source->width, source->height})) {
+    resampled = render::AreaResample(*source, job.size.width, job.size.height);
+    source = &*resampled;
+  }
   std::vector<uint8_t> png;  // Owns PNG bytes; JPEG bytes live in the leased encoder.
   std::optional<encode::JpegEncoderPool::Lease> encoder;
   Result<std::span<const uint8_t>> image = InternalError("not encoded");
   if (job.png) {
     // The pixels as shown (over black), opaque: exactly what the JPEG frames approximate.
-    encode::Rgba8Image rgba = encode::ToRgba8(job.image.rgba.data(), job.image.width,
-                                              job.image.height, encode::AlphaMode::kOverBlack);
+    encode::Rgba8Image rgba = encode::ToRgba8(source->rgba.data(), source->width, source->height,
+                                              encode::AlphaMode::kOverBlack);
     for (size_t i = 3; i < rgba.pixels.size(); i += 4) rgba.pixels[i] = 255;
     auto encoded = encode::EncodePng(rgba);
     if (encoded.ok()) png = std::move(*encoded);
@@ -551,34 +1117,54 @@ void ViewSession::Encode(EncodeJob job) {
     } else {
       encoder.emplace(std::move(*lease));
       // Final frames get the exact DCT; interactive and progress frames the fast one.
-      image = (*encoder)->Encode(job.image.rgba.data(), job.image.width, job.image.height,
+      image = (*encoder)->Encode(source->rgba.data(), source->width, source->height,
                                  job.jpeg_quality, job.header.final);
     }
   }
   if (!image.ok()) {
-    SendError("encoding a frame: " + image.status().message(), "render", false);
+    for (const auto& p : job.recipients) {
+      SendError(*p, "encoding a frame: " + image.status().message(), "render", false);
+    }
     return;
   }
   const double encode_ms = Elapsed(start);
   protocol::FrameHeader header = job.header;
   header.format = job.png ? protocol::ImageFormat::kPng : protocol::ImageFormat::kJpeg;
   header.lossless = job.png;
-  header.width = static_cast<uint16_t>(job.image.width);
-  header.height = static_cast<uint16_t>(job.image.height);
+  header.width = static_cast<uint16_t>(source->width);
+  header.height = static_cast<uint16_t>(source->height);
   header.encode_ms = static_cast<float>(encode_ms);
   auto message = protocol::BuildFrameMessage(header, *image);
   if (!message.ok()) {
-    SendError("framing: " + message.status().message(), "render", false);
+    for (const auto& p : job.recipients) {
+      SendError(*p, "framing: " + message.status().message(), "render", false);
+    }
     return;
   }
   if (context_.metrics != nullptr) context_.metrics->Encoded(header.format, encode_ms);
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return;
-    ArmTimerLocked(&stats_timer_, Clock::now() + options_.stats_interval,
-                   [](ViewSession& s) { s.SendStatsLocked(); });
+    for (const auto& p : job.recipients) {
+      if (p->left || p->stats_timer) continue;
+      p->stats_timer = context_.timers->Schedule(Clock::now() + options_.stats_interval,
+                                                 [weak = weak_from_this(), p] {
+                                                   auto self = weak.lock();
+                                                   if (self == nullptr) return;
+                                                   std::lock_guard<std::mutex> lock(self->mu_);
+                                                   p->stats_timer.reset();
+                                                   if (!self->closed_ && !p->left)
+                                                     self->SendStatsLocked(p);
+                                                 });
+    }
   }
-  outbox_.Offer(OutgoingFrame{job.outbox_view, job.sequence, header.final, std::move(*message)});
+  // Each recipient gets its own copy: the outbox writes the participant's frame id into it.
+  for (size_t i = 0; i < job.recipients.size(); ++i) {
+    std::vector<uint8_t> bytes =
+        i + 1 == job.recipients.size() ? std::move(*message) : std::vector<uint8_t>(*message);
+    job.recipients[i]->outbox().Offer(
+        OutgoingFrame{job.outbox_view, job.sequence, header.final, std::move(bytes)});
+  }
 }
 
 void ViewSession::OnDatasetChange() {
@@ -597,7 +1183,7 @@ void ViewSession::OnDatasetChange() {
 
 void ViewSession::SendDatasetEventLocked() {
   if (dataset_ == nullptr) return;
-  sink_->SendText(protocol::DatasetEvent(DatasetJsonLocked()));
+  SendAllLocked(protocol::DatasetEvent(DatasetJsonLocked()));
 }
 
 void ViewSession::RefreshDataLocked() {
@@ -605,8 +1191,8 @@ void ViewSession::RefreshDataLocked() {
   const dataset::DatasetStatus status = dataset_->dataset().status();
   seen_planes_ = status.planes_inserted;
   if (auto_contrast_pending_) {
-    // The histogram grows with the data: keep the opening auto-contrast up to date until the
-    // client sets its own parameters or every voxel is counted.
+    // The histogram grows with the data: keep the opening auto-contrast up to date until a
+    // participant sets its own parameters or every voxel is counted.
     const dataset::Histogram histogram = dataset_->dataset().histogram();
     bool changed = false;
     for (int c = 0;
@@ -620,25 +1206,31 @@ void ViewSession::RefreshDataLocked() {
     auto_contrast_pending_ = !status.histogram_complete;
     if (changed) {
       ++state_version_;
-      sink_->SendText(protocol::StateEvent(*state_, state_version_));
+      SendAllLocked(protocol::StateEvent(*state_, state_version_));
       const auto now = Clock::now();
-      for (View& view : views_) view.policy.OnChange(++view.content_version, now);
+      for (View& view : views_) {
+        ++view.content_version;
+        for (Group& g : view.groups) g.policy.OnChange(view.content_version, now);
+      }
       PumpLocked();
       return;
     }
   }
-  for (View& view : views_) view.policy.OnDataChange(++view.content_version);
+  for (View& view : views_) {
+    ++view.content_version;
+    for (Group& g : view.groups) g.policy.OnDataChange(view.content_version);
+  }
   PumpLocked();
 }
 
-void ViewSession::SendStatsLocked() {
-  const OutboxStats stats = outbox_.stats();
-  if (context_.metrics != nullptr && stats.dropped > last_stats_.dropped) {
-    context_.metrics->FramesDropped(stats.dropped - last_stats_.dropped);
+void ViewSession::SendStatsLocked(const std::shared_ptr<Participant>& p) {
+  const OutboxStats stats = p->outbox().stats();
+  if (context_.metrics != nullptr && stats.dropped > p->last_stats.dropped) {
+    context_.metrics->FramesDropped(stats.dropped - p->last_stats.dropped);
   }
-  if (stats.sent == last_stats_.sent && stats.dropped == last_stats_.dropped) return;
-  last_stats_ = stats;
-  sink_->SendText(
+  if (stats.sent == p->last_stats.sent && stats.dropped == p->last_stats.dropped) return;
+  p->last_stats = stats;
+  p->sink().SendText(
       protocol::StatsEvent({stats.sent, stats.dropped, stats.bytes_sent, bricks_pending_}));
 }
 

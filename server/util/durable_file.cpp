@@ -17,10 +17,10 @@ Status Errno(const std::filesystem::path& path, const char* step) {
 }  // namespace
 
 Status WriteFileDurably(const std::filesystem::path& path, std::string_view content,
-                        std::string_view temp_suffix) {
+                        std::string_view temp_suffix, unsigned mode) {
   std::filesystem::path tmp = path;
   tmp += temp_suffix;
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, static_cast<mode_t>(mode));
   if (fd < 0) return Errno(tmp, "open");
   // Write everything, retrying short writes and interrupted calls.
   size_t done = 0;

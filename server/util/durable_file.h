@@ -17,8 +17,9 @@ namespace octoscope {
 // Replaces `path` atomically with `content`. Errors name the file and the failing step.
 // `temp_suffix` names the temporary file (<path><temp_suffix>); writers that may race on one
 // path from several processes give each process its own suffix.
+// `mode`: the new file's permission bits (before the umask).
 Status WriteFileDurably(const std::filesystem::path& path, std::string_view content,
-                        std::string_view temp_suffix = ".tmp");
+                        std::string_view temp_suffix = ".tmp", unsigned mode = 0644);
 
 // fsync()s a directory, making renames and removals inside it durable.
 Status SyncDirectory(const std::filesystem::path& dir);

@@ -47,5 +47,32 @@ TEST(AuthTest, TokenFromBearerHeaderOrQuery) {
   EXPECT_FALSE(RequestCarriesToken(token, "", "token=%zz"));
 }
 
+TEST(AuthTest, ReadCredentialsFindsTokensSharesAndViews) {
+  RequestCredentials c = ReadCredentials("Bearer abc", "token=d%20e&share=s1&share=s2&view=v1");
+  ASSERT_EQ(c.tokens.size(), 2u);
+  EXPECT_EQ(c.tokens[0], "abc");
+  EXPECT_EQ(c.tokens[1], "d e");
+  EXPECT_EQ(c.share, "s1");
+  EXPECT_EQ(c.view, "v1");
+  // A malformed query carries nothing (the header still counts).
+  c = ReadCredentials("Bearer abc", "share=%zz");
+  EXPECT_EQ(c.tokens.size(), 1u);
+  EXPECT_FALSE(c.share.has_value());
+  EXPECT_EQ(StripCredentials("a=1&token=x&share=y&view=z&b=2"), "a=1&b=2");
+  EXPECT_EQ(StripCredentials("token=x"), "");
+}
+
+TEST(AuthTest, TokenAuthenticatorAdmitsItsTokenAsAnAdmin) {
+  TokenAuthenticator auth("0123456789abcdef");
+  std::optional<Principal> p = auth.Authenticate("", "token=0123456789abcdef");
+  ASSERT_TRUE(p.has_value());
+  EXPECT_EQ(p->kind, Principal::Kind::kUser);
+  EXPECT_EQ(p->user, "admin");
+  EXPECT_TRUE(p->admin);
+  EXPECT_FALSE(auth.Authenticate("", "share=0123456789abcdef").has_value());
+  EXPECT_FALSE(auth.Authenticate("Bearer 0123456789abcdeF", "").has_value());
+  EXPECT_EQ(auth.RefusalMessage("", ""), "missing or wrong token");
+}
+
 }  // namespace
 }  // namespace octoscope::net

@@ -12,6 +12,7 @@
 #include <thread>
 #include <vector>
 
+#include "net/auth.h"
 #include "net/net_test_client.h"
 #include "net/server.h"
 #include "net/test_handlers.h"
@@ -90,7 +91,8 @@ class HttpServerTest : public ::testing::Test {
   }
 
   void Start(ServerOptions options = {}) {
-    options.token = kToken;
+    if (!options.authenticator)
+      options.authenticator = std::make_shared<TokenAuthenticator>(kToken);
     options.web_root = web_;
     if (options.io_threads == 2) options.io_threads = io_threads_;
     auto factory = [](const WsConnectInfo&) -> std::unique_ptr<WsHandler> { return nullptr; };
@@ -118,7 +120,7 @@ TEST_F(HttpServerTest, PortZeroPicksAFreePortAndTwoServersGetDifferentOnes) {
   Start();
   CapturingLogger other_logger;
   ServerOptions options;
-  options.token = kToken;
+  options.authenticator = std::make_shared<TokenAuthenticator>(kToken);
   auto other = Server::Start(
       options, api_, [](const WsConnectInfo&) { return std::unique_ptr<WsHandler>(); },
       other_logger);
@@ -138,7 +140,7 @@ TEST_F(HttpServerTest, BadOptionsAreRefused) {
   ServerOptions options;
   EXPECT_EQ(Server::Start(options, api_, factory, logger_).status().code(),
             StatusCode::kInvalidArgument);  // No token.
-  options.token = kToken;
+  options.authenticator = std::make_shared<TokenAuthenticator>(kToken);
   options.bind_address = "localhost:80";
   EXPECT_EQ(Server::Start(options, api_, factory, logger_).status().code(),
             StatusCode::kInvalidArgument);
@@ -317,6 +319,60 @@ TEST_F(HttpServerTest, ApiAndMetricsRequireTheToken) {
   EXPECT_GE(by_status[401], 3u);
   EXPECT_GE(by_status[200], 4u);
   EXPECT_EQ(by_status.count(500), 0u);
+}
+
+// An Authenticator of two users, one expired token, share links and view links.
+class TableAuthenticator : public Authenticator {
+ public:
+  std::optional<Principal> Authenticate(std::string_view authorization,
+                                        std::string_view raw_query) const override {
+    const RequestCredentials c = ReadCredentials(authorization, raw_query);
+    for (const std::string& t : c.tokens) {
+      if (t == "alice-token-0123456789")
+        return Principal{Principal::Kind::kUser, "alice", false, ""};
+      if (t == "root-token-0123456789") return Principal{Principal::Kind::kUser, "root", true, ""};
+    }
+    if (c.share == "s123") return Principal{Principal::Kind::kShare, "", false, "s123"};
+    if (c.view == "v456") return Principal{Principal::Kind::kView, "", false, "v456"};
+    return std::nullopt;
+  }
+  std::string RefusalMessage(std::string_view authorization,
+                             std::string_view raw_query) const override {
+    for (const std::string& t : ReadCredentials(authorization, raw_query).tokens) {
+      if (t == "old-token-0123456789") return "token expired";
+    }
+    return "missing or wrong token";
+  }
+};
+
+TEST_F(HttpServerTest, TheAuthenticatorNamesThePrincipalAndCredentialsNeverReachHandlers) {
+  ServerOptions options;
+  options.authenticator = std::make_shared<TableAuthenticator>();
+  Start(options);
+  HttpResult alice = Fetch(port_, http::verb::get, "/api/echo?token=alice-token-0123456789&x=1");
+  EXPECT_EQ(alice.status, 200);
+  EXPECT_NE(alice.body.find("\"principal\":\"user:alice\""), std::string::npos) << alice.body;
+  EXPECT_NE(alice.body.find("\"query\":\"x=1\""), std::string::npos) << alice.body;
+  HttpResult root = Fetch(port_, http::verb::get, "/api/echo",
+                          {{"Authorization", "Bearer root-token-0123456789"}});
+  EXPECT_NE(root.body.find("\"principal\":\"user:root:admin\""), std::string::npos) << root.body;
+  // Share and view credentials are stripped from the query like the token.
+  HttpResult share = Fetch(port_, http::verb::get, "/api/echo?a=1&share=s123&view=zz&b=2");
+  EXPECT_EQ(share.status, 200);
+  EXPECT_NE(share.body.find("\"principal\":\"share:s123\""), std::string::npos) << share.body;
+  EXPECT_NE(share.body.find("\"query\":\"a=1&b=2\""), std::string::npos) << share.body;
+  HttpResult view = Fetch(port_, http::verb::get, "/api/echo?view=v456");
+  EXPECT_NE(view.body.find("\"principal\":\"view:v456\""), std::string::npos) << view.body;
+  // Refusals carry the Authenticator's message.
+  HttpResult expired = Fetch(port_, http::verb::get, "/api/echo?token=old-token-0123456789");
+  EXPECT_EQ(expired.status, 401);
+  EXPECT_EQ(expired.body, "{\"error\":\"token expired\"}");
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/echo?share=nope").status, 401);
+  for (const std::string& line : logger_.lines()) {
+    EXPECT_EQ(line.find("s123"), std::string::npos) << line;
+    EXPECT_EQ(line.find("v456"), std::string::npos) << line;
+    EXPECT_EQ(line.find("alice-token"), std::string::npos) << line;
+  }
 }
 
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {

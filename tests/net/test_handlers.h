@@ -74,12 +74,25 @@ inline uint64_t Fnv1a(const uint8_t* data, size_t size, uint64_t hash = 14695981
 
 // Routes:
 //   /api/health           {"status":"ok"} (no token needed: the net layer lets it through)
-//   /api/echo             {"method","path","query","body_bytes","authorization","headers"}
+//   /api/echo             {"method","path","query","body_bytes","authorization","principal"}
 //   /api/slow             answered from the worker once Release() was called
 //   /api/drop             the responder is dropped unanswered
 //   /api/throw            Handle throws
 //   /api/upload (PUT)     streamed: pieces are consumed on the worker; {"bytes":N,"fnv":H}
 //   /metrics              text/plain
+// "user:NAME[:admin]", "share:CREDENTIAL" or "view:CREDENTIAL".
+inline std::string Describe(const Principal& p) {
+  switch (p.kind) {
+    case Principal::Kind::kUser:
+      return "user:" + p.user + (p.admin ? ":admin" : "");
+    case Principal::Kind::kShare:
+      return "share:" + p.credential;
+    case Principal::Kind::kView:
+      return "view:" + p.credential;
+  }
+  return "?";
+}
+
 class TestApi : public ApiHandler {
  public:
   BodyMode BodyModeFor(const HttpRequest& head) override {
@@ -99,7 +112,8 @@ class TestApi : public ApiHandler {
       responder.Respond(HttpResponse::Json(
           200, "{\"method\":\"" + request.method + "\",\"path\":\"" + request.path +
                    "\",\"query\":\"" + request.query + "\",\"body_bytes\":" +
-                   std::to_string(request.body.size()) + ",\"authorization\":\"" + auth + "\"}"));
+                   std::to_string(request.body.size()) + ",\"authorization\":\"" + auth +
+                   "\",\"principal\":\"" + Describe(request.principal) + "\"}"));
     } else if (request.path == "/api/slow") {
       ++slow_started_;
       worker_.Post([release = released_, responder] {

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "net/net_test_client.h"
+#include "net/auth.h"
 #include "net/server.h"
 #include "net/test_handlers.h"
 #include "protocol/ws_messages.h"
@@ -65,7 +66,7 @@ class WebSocketTest : public ::testing::Test {
   }
 
   void Start(ServerOptions options = {}) {
-    options.token = kToken;
+    options.authenticator = std::make_shared<TokenAuthenticator>(kToken);
     auto factory = [this](const WsConnectInfo& info) -> std::unique_ptr<WsHandler> {
       ++factory_calls_;
       if (info.query == "refuse") return nullptr;

@@ -348,7 +348,8 @@ TEST(WsMessagesTest, CameraForSizeKeepsThePoseAndTakesTheSize) {
 TEST(WsMessagesTest, EventsAreTheDocumentedJson) {
   const json welcome = json::parse(WelcomeEvent("0.1.0", "s-17"));
   EXPECT_EQ(welcome, json::parse(R"({"type":"welcome","protocol":1,"server":"0.1.0",
-                                     "session":"s-17","datasets_url":"/api/datasets"})"));
+                                     "session":"s-17","datasets_url":"/api/datasets",
+                                     "participant":"p1","role":"owner"})"));
 
   const ViewState state{
       TestCamera(render::Projection::kOrthographic),
@@ -386,6 +387,116 @@ TEST(WsMessagesTest, EventsAreTheDocumentedJson) {
   EXPECT_EQ(json::parse(StatsEvent({5, 2, 123456789012, 7})),
             json::parse(R"({"type":"stats","frames_sent":5,"frames_dropped":2,
                             "bytes_sent":123456789012,"bricks_pending":7})"));
+}
+
+}  // namespace
+}  // namespace octoscope::protocol
+
+namespace octoscope::protocol {
+namespace {
+
+TEST(WsMessagesSharingTest, ParsesTheSharingMessages) {
+  const HelloMessage hello = ParseAs<HelloMessage>(
+      R"({"type":"hello","protocol":1,"name":"Ada L.","resume":"0123456789abcdef0123456789abcdef"})");
+  EXPECT_EQ(hello.name, "Ada L.");
+  EXPECT_EQ(hello.resume, "0123456789abcdef0123456789abcdef");
+  const OpenMessage view =
+      ParseAs<OpenMessage>(R"({"type":"open","view":"AbC_-0123456789abcdefg"})");
+  EXPECT_EQ(view.view, "AbC_-0123456789abcdefg");
+  EXPECT_TRUE(view.dataset.empty());
+  const ShareCreateMessage share =
+      ParseAs<ShareCreateMessage>(R"({"type":"share_create","role":"controller","ttl_s":60})");
+  EXPECT_EQ(share.role, Role::kController);
+  EXPECT_EQ(share.ttl_s, 60);
+  EXPECT_FALSE(ParseAs<ShareCreateMessage>(R"({"type":"share_create","role":"viewer"})").ttl_s);
+  EXPECT_EQ(ParseAs<ShareRevokeMessage>(R"({"type":"share_revoke","token":"abc"})").token, "abc");
+  const ParticipantRoleMessage role = ParseAs<ParticipantRoleMessage>(
+      R"({"type":"participant_role","participant":"p2","role":"viewer"})");
+  EXPECT_EQ(role.participant, "p2");
+  EXPECT_EQ(role.role, Role::kViewer);
+  EXPECT_EQ(ParseAs<KickMessage>(R"({"type":"kick","participant":"p7"})").participant, "p7");
+  ParseAs<ViewSaveMessage>(R"({"type":"view_save"})");
+}
+
+TEST(WsMessagesSharingTest, BadSharingMessagesAreRefusedNamingTheField) {
+  const Bad bad[] = {
+      {R"({"type":"hello","protocol":1,"resume":"XYZ"})", "hello", "hello.resume"},
+      {R"({"type":"hello","protocol":1,"resume":"0123456789ABCDEF0123456789ABCDEF"})", "hello",
+       "hello.resume"},
+      {R"({"type":"hello","protocol":1,"name":""})", "hello", "hello.name: is empty"},
+      {R"({"type":"open","view":"short"})", "open", "open.view"},
+      {R"({"type":"open","view":"AAAAAAAAAAAAAAAAAAAAAA","dataset":"d"})", "open",
+       "open.view: is given with dataset"},
+      {R"({"type":"open","view":"AAAAAAAAAAAAAAAAAAAAA/"})", "open", "open.view"},
+      {R"({"type":"share_create","role":"owner"})", "share_create",
+       "share_create.role: is \"owner\", expected viewer or controller"},
+      {R"({"type":"share_create"})", "share_create", "share_create.role: missing"},
+      {R"({"type":"share_create","role":"viewer","ttl_s":59})", "share_create",
+       "share_create.ttl_s"},
+      {R"({"type":"share_create","role":"viewer","ttl_s":1e12})", "share_create",
+       "share_create.ttl_s"},
+      {R"({"type":"share_revoke","token":""})", "share_revoke", "share_revoke.token: is empty"},
+      {R"({"type":"participant_role","participant":"p2","role":"admin"})", "participant_role",
+       "participant_role.role"},
+      {R"({"type":"participant_role","participant":"","role":"viewer"})", "participant_role",
+       "participant_role.participant: is empty"},
+      {R"({"type":"kick"})", "kick", "kick.participant: missing"},
+      {R"({"type":"view_save","id":1})", "view_save", "unknown key \"id\" in view_save"},
+  };
+  for (const Bad& b : bad) {
+    std::string type = "stale";
+    Result<ClientMessage> m = ParseClientMessage(b.text, &type);
+    ASSERT_FALSE(m.ok()) << b.text;
+    EXPECT_NE(m.status().message().find(b.says), std::string::npos)
+        << b.text << "\n  got: " << m.status().message() << "\n  expected: " << b.says;
+    EXPECT_EQ(type, b.type) << b.text;
+  }
+}
+
+TEST(WsMessagesSharingTest, SharingEventsAreTheDocumentedJson) {
+  const json welcome = json::parse(WelcomeEvent("0.1.0", "s1", "p3", Role::kViewer));
+  EXPECT_EQ(welcome["participant"], "p3");
+  EXPECT_EQ(welcome["role"], "viewer");
+  EXPECT_FALSE(welcome.contains("resume"));
+  EXPECT_EQ(json::parse(WelcomeEvent("0.1.0", "s1", "p1", Role::kOwner, "ab"))["resume"], "ab");
+  const json participants = json::parse(ParticipantsEvent(
+      {{"p1", "Ada \"A\"", Role::kOwner, true}, {"p2", "Bob", Role::kViewer, false}}, "p2"));
+  EXPECT_EQ(participants, json::parse(R"({"type":"participants","participants":[
+      {"id":"p1","name":"Ada \"A\"","role":"owner","driving":true,"you":false},
+      {"id":"p2","name":"Bob","role":"viewer","driving":false,"you":true}]})"));
+  const json created =
+      json::parse(ShareCreatedEvent({"tok", Role::kController, "http://h/?share=tok", 0, 0}));
+  EXPECT_EQ(created, json::parse(R"({"type":"share_created","token":"tok","role":"controller",
+      "url":"http://h/?share=tok","expires":"1970-01-01T00:00:00Z"})"));
+  const json shares = json::parse(SharesEvent({{"t", Role::kViewer, "u", std::nullopt, 2}}));
+  EXPECT_EQ(shares["shares"][0]["participants"], 2);
+  EXPECT_TRUE(shares["shares"][0]["expires"].is_null());
+  EXPECT_EQ(json::parse(ViewSavedEvent("id", "u")),
+            json::parse(R"({"type":"view_saved","id":"id","url":"u"})"));
+  EXPECT_EQ(IsoUtc(1764072000), "2025-11-25T12:00:00Z");
+}
+
+TEST(WsMessagesSharingTest, ViewLinksRoundTripAndAreReadStrictly) {
+  auto state = ParseStateDocument(
+      R"({"camera":{"projection":"ortho","position":[1,2,3],"target":[1,2,0],"up":[0,1,0],
+          "ortho_height":10},"slices":{"position_um":[1,2,3]},"layout":{"maximized":null}})");
+  ASSERT_TRUE(state.ok()) << state.status().ToString();
+  auto params = ApplyParams(
+      "{}", render::DefaultRenderParams(1, volume::DataType::kUint16, render::RenderMode::kMip));
+  ASSERT_TRUE(params.ok());
+  const ViewState full{*state->camera, *params, {1, 2, 3}, ViewId::kX};
+  const std::string text = ViewLinkJson("embryo", full);
+  auto link = ParseViewLink(text);
+  ASSERT_TRUE(link.ok()) << link.status().ToString();
+  EXPECT_EQ(link->dataset, "embryo");
+  EXPECT_EQ(link->state.layout->maximized, ViewId::kX);
+  EXPECT_FALSE(ParseViewLink(R"({"version":1,"dataset":"e"})").ok());
+  EXPECT_FALSE(ParseViewLink(R"({"version":2,"dataset":"e","state":{}})").ok());
+  EXPECT_FALSE(ParseViewLink(R"({"version":1,"dataset":"E!","state":{}})").ok());
+  auto partial = ParseViewLink(R"({"version":1,"dataset":"e","state":{"layout":{}}})");
+  ASSERT_FALSE(partial.ok());
+  EXPECT_NE(partial.status().message().find("must hold camera, params, slices and layout"),
+            std::string::npos);
 }
 
 }  // namespace
