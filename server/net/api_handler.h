@@ -44,7 +44,11 @@ struct HttpRequest {
   std::vector<HttpHeader> headers;          // As received, without Authorization.
   std::string body;                         // The whole body (BodyMode::kBuffered); else empty.
   std::shared_ptr<BodyReader> body_reader;  // Set for BodyMode::kStreamed, else null.
-  std::string remote;                       // "127.0.0.1:54321".
+  // The peer, "127.0.0.1:54321"; behind a trusted proxy the client's address from
+  // X-Forwarded-For ("203.0.113.7", no port).
+  std::string remote;
+  // "https" when a trusted proxy says so in X-Forwarded-Proto, else "http".
+  std::string scheme = "http";
   // Who the request speaks for (the Authenticator's answer). GET /api/health, answered without
   // credentials, has a default Principal: a user with an empty name, not admin.
   Principal principal;

@@ -48,6 +48,12 @@ std::string Endpoint(const tcp::socket& socket) {
   return e.address().to_string() + ":" + std::to_string(e.port());
 }
 
+asio::ip::address PeerAddress(const tcp::socket& socket) {
+  beast::error_code ec;
+  const tcp::endpoint e = socket.remote_endpoint(ec);
+  return ec ? asio::ip::address() : e.address();
+}
+
 // A header value may not contain line breaks (they would forge headers).
 bool SafeHeaderValue(std::string_view value) {
   return value.find_first_of("\r\n") == std::string_view::npos;
@@ -86,7 +92,9 @@ HttpSession::HttpSession(tcp::socket socket, std::shared_ptr<ServerCore> core)
     : core_(std::move(core)),
       stream_(std::move(socket)),
       buffer_(core_->options.max_header_bytes + (size_t{64} << 10)),
-      remote_(Endpoint(stream_.socket())) {}
+      peer_(PeerAddress(stream_.socket())),
+      peer_remote_(Endpoint(stream_.socket())),
+      remote_(peer_remote_) {}
 
 HttpSession::~HttpSession() {
   if (piece_done_) FailPiece(UnavailableError("the connection is closed"));
@@ -184,7 +192,23 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
     return;
   }
   path_ = std::move(path).value();
+  IdentifyClient();
   Route();
+}
+
+void HttpSession::IdentifyClient() {
+  remote_ = peer_remote_;
+  scheme_ = "http";
+  if (core_->proxies.empty() || !core_->proxies.Contains(peer_)) return;
+  const auto& request = header_parser_->get();
+  const std::string client = core_->proxies.ClientAddress(peer_, Std(request["X-Forwarded-For"]));
+  if (!client.empty()) remote_ = client;
+  // The proxy nearest to us appends last.
+  std::string_view proto = Std(request["X-Forwarded-Proto"]);
+  if (const size_t comma = proto.rfind(','); comma != std::string_view::npos) {
+    proto = proto.substr(comma + 1);
+  }
+  if (EqualsIgnoreCase(TrimWhitespace(proto), "https")) scheme_ = "https";
 }
 
 bool HttpSession::Authenticate() {
@@ -300,6 +324,7 @@ void HttpSession::StartApi() {
   r.path = path_;
   r.query = StripCredentials(query_);
   r.remote = remote_;
+  r.scheme = scheme_;
   r.principal = principal_;
   for (const auto& field : request) {
     if (field.name() == http::field::authorization) continue;  // Handlers never see the secret.
@@ -543,7 +568,11 @@ void HttpSession::ContinueThen(std::function<void()> next) {
 void HttpSession::UpgradeToWebSocket() {
   http::request<http::empty_body> request = header_parser_->release();
   header_parser_.reset();
-  WsConnectInfo info{remote_, StripCredentials(query_), std::move(principal_)};
+  WsConnectInfo info;
+  info.remote = remote_;
+  info.scheme = scheme_;
+  info.query = StripCredentials(query_);
+  info.principal = std::move(principal_);
   auto session =
       std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info));
   state_ = State::kClosed;  // This object ends here; the socket lives on in the WebSocket.

@@ -52,6 +52,8 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
 
   void DoReadHeader();
   void OnReadHeader(boost::beast::error_code ec);
+  // Sets remote_ and scheme_ of the current request (trusted proxy headers).
+  void IdentifyClient();
   void Route();
   // Asks the Authenticator; on success the principal is kept in principal_, else a 401 with the
   // Authenticator's message was sent and false is returned.
@@ -85,7 +87,10 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   const std::shared_ptr<ServerCore> core_;
   boost::beast::tcp_stream stream_;
   boost::beast::flat_buffer buffer_;
-  std::string remote_;
+  boost::asio::ip::address peer_;  // The socket's peer.
+  std::string peer_remote_;        // "ADDRESS:PORT" of the peer.
+  std::string remote_;             // The request's client: the peer, or whom a trusted proxy names.
+  std::string scheme_ = "http";  // Of the current request (X-Forwarded-Proto from a trusted proxy).
   uint64_t registry_id_ = 0;
   State state_ = State::kReadingHeader;
   bool shutting_down_ = false;

@@ -161,6 +161,8 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
       return NotFoundError("server: web root " + options.web_root.string() + " is not a directory");
     }
   }
+  auto proxies = TrustedProxies::Parse(options.trusted_proxies);
+  if (!proxies.ok()) return InvalidArgumentError("server: " + proxies.status().message());
   const tcp::endpoint endpoint(address, options.port);
   const int threads = options.io_threads;
 
@@ -170,6 +172,7 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
   impl.core = std::make_shared<ServerCore>(std::move(options), std::move(api),
                                            std::move(ws_factory), logger);
   impl.core->web_root = web_root;
+  impl.core->proxies = std::move(*proxies);
   impl.listener = std::make_shared<Listener>(impl.ioc, impl.core);
   OCTO_RETURN_IF_ERROR(impl.listener->Open(endpoint));
   server->port_ = impl.listener->port();

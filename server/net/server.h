@@ -44,6 +44,9 @@ struct ServerOptions {
   int io_threads = 2;                      // [1, 64].
   // REQUIRED: decides who each API request and WebSocket upgrade speaks for (net/principal.h).
   std::shared_ptr<const Authenticator> authenticator;
+  // Reverse proxies (addresses or CIDR networks, net/trusted_proxies.h) whose X-Forwarded-For and
+  // X-Forwarded-Proto headers are believed; from other peers those headers are ignored.
+  std::vector<std::string> trusted_proxies;
   // The web client's files; empty serves none (every static path is 404).
   std::filesystem::path web_root;
 
@@ -72,7 +75,8 @@ class Server {
   // Binds and listens on options.bind_address:options.port and starts the I/O threads.
   // `api` answers /api and /metrics; `ws_factory` creates /ws handlers; `logger` (REQUIRES:
   // outlives the server) gets one line per event. Errors: kInvalidArgument (options),
-  // kNotFound (web_root is not a directory), kUnavailable (the address cannot be bound).
+  // kInvalidArgument also for a malformed trusted proxy, kNotFound (web_root is not a directory),
+  // kUnavailable (the address cannot be bound).
   static Result<std::unique_ptr<Server>> Start(ServerOptions options,
                                                std::shared_ptr<ApiHandler> api,
                                                WsHandlerFactory ws_factory, Logger& logger);

@@ -29,6 +29,7 @@
 
 #include "net/api_handler.h"
 #include "net/server.h"
+#include "net/trusted_proxies.h"
 #include "net/ws_handler.h"
 #include "util/logger.h"
 
@@ -116,6 +117,7 @@ struct ServerCore {
   const WsHandlerFactory ws_factory;
   Logger& logger;
   std::filesystem::path web_root;  // Canonical, or empty. Set before the first connection.
+  TrustedProxies proxies;  // Parsed options.trusted_proxies. Set before the first connection.
   ConnectionRegistry registry;
   std::atomic<bool> shutting_down{false};
   std::atomic<size_t> websockets{0};

@@ -87,7 +87,11 @@ class WsHandler {
 };
 
 struct WsConnectInfo {
-  std::string remote;  // "127.0.0.1:54321".
+  // The peer, "127.0.0.1:54321"; behind a trusted proxy the client's address from
+  // X-Forwarded-For ("203.0.113.7", no port).
+  std::string remote;
+  // "https" when a trusted proxy says so in X-Forwarded-Proto, else "http".
+  std::string scheme = "http";
   // The upgrade request's raw query without the "token", "share" and "view" parameters.
   std::string query;
   Principal principal;  // Who the connection speaks for (the Authenticator's answer).

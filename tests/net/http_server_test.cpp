@@ -375,6 +375,43 @@ TEST_F(HttpServerTest, TheAuthenticatorNamesThePrincipalAndCredentialsNeverReach
   }
 }
 
+TEST_F(HttpServerTest, ForwardedHeadersAreBelievedOnlyFromTrustedProxies) {
+  const std::vector<std::pair<std::string, std::string>> forwarded = {
+      {"X-Forwarded-For", "198.51.100.9, 203.0.113.7"}, {"X-Forwarded-Proto", "https"}};
+  {
+    ServerOptions options;
+    options.trusted_proxies = {"127.0.0.0/8"};
+    Start(options);
+    auto headers = Bearer();
+    headers.insert(headers.end(), forwarded.begin(), forwarded.end());
+    HttpResult r = Fetch(port_, http::verb::get, "/api/echo", headers);
+    EXPECT_NE(r.body.find("\"remote\":\"203.0.113.7\""), std::string::npos) << r.body;
+    EXPECT_NE(r.body.find("\"scheme\":\"https\""), std::string::npos) << r.body;
+    EXPECT_TRUE(logger_.Contains("HTTP 203.0.113.7 GET /api/echo 200"));
+    // Without the header: the proxy itself.
+    r = Fetch(port_, http::verb::get, "/api/echo", Bearer());
+    EXPECT_NE(r.body.find("\"remote\":\"127.0.0.1:"), std::string::npos) << r.body;
+    EXPECT_NE(r.body.find("\"scheme\":\"http\""), std::string::npos) << r.body;
+    server_.reset();
+  }
+  // From a peer that is not a trusted proxy the headers are ignored.
+  ServerOptions options;
+  options.trusted_proxies = {"10.0.0.0/8", "fd00::/8"};
+  Start(options);
+  auto headers = Bearer();
+  headers.insert(headers.end(), forwarded.begin(), forwarded.end());
+  HttpResult r = Fetch(port_, http::verb::get, "/api/echo", headers);
+  EXPECT_NE(r.body.find("\"remote\":\"127.0.0.1:"), std::string::npos) << r.body;
+  EXPECT_NE(r.body.find("\"scheme\":\"http\""), std::string::npos) << r.body;
+  // A malformed proxy list is refused at start.
+  ServerOptions bad;
+  bad.authenticator = std::make_shared<TokenAuthenticator>(kToken);
+  bad.trusted_proxies = {"10.0.0.0/33"};
+  auto factory = [](const WsConnectInfo&) { return std::unique_ptr<WsHandler>(); };
+  EXPECT_EQ(Server::Start(bad, api_, factory, logger_).status().code(),
+            StatusCode::kInvalidArgument);
+}
+
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {
   Start();
   // Just under the limit is fine.

@@ -74,7 +74,8 @@ inline uint64_t Fnv1a(const uint8_t* data, size_t size, uint64_t hash = 14695981
 
 // Routes:
 //   /api/health           {"status":"ok"} (no token needed: the net layer lets it through)
-//   /api/echo             {"method","path","query","body_bytes","authorization","principal"}
+//   /api/echo             {"method","path","query","body_bytes","authorization","principal",
+//                         "remote","scheme"}
 //   /api/slow             answered from the worker once Release() was called
 //   /api/drop             the responder is dropped unanswered
 //   /api/throw            Handle throws
@@ -110,10 +111,11 @@ class TestApi : public ApiHandler {
     } else if (request.path == "/api/echo") {
       std::string auth(request.Header("Authorization"));
       responder.Respond(HttpResponse::Json(
-          200, "{\"method\":\"" + request.method + "\",\"path\":\"" + request.path +
-                   "\",\"query\":\"" + request.query + "\",\"body_bytes\":" +
-                   std::to_string(request.body.size()) + ",\"authorization\":\"" + auth +
-                   "\",\"principal\":\"" + Describe(request.principal) + "\"}"));
+          200,
+          "{\"method\":\"" + request.method + "\",\"path\":\"" + request.path + "\",\"query\":\"" +
+              request.query + "\",\"body_bytes\":" + std::to_string(request.body.size()) +
+              ",\"authorization\":\"" + auth + "\",\"principal\":\"" + Describe(request.principal) +
+              "\",\"remote\":\"" + request.remote + "\",\"scheme\":\"" + request.scheme + "\"}"));
     } else if (request.path == "/api/slow") {
       ++slow_started_;
       worker_.Post([release = released_, responder] {

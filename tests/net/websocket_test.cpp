@@ -11,8 +11,8 @@
 #include <thread>
 #include <vector>
 
-#include "net/net_test_client.h"
 #include "net/auth.h"
+#include "net/net_test_client.h"
 #include "net/server.h"
 #include "net/test_handlers.h"
 #include "protocol/ws_messages.h"
