@@ -44,7 +44,8 @@ using testing::WriteFile;
 constexpr char kToken[] = "deploy-test-token-0123456789abcdef";
 const fs::path kSource = OCTOSCOPE_SOURCE_DIR;
 
-fs::path TestDir(const std::string& name) {
+fs::path TestDir(std::string name) {
+  std::replace(name.begin(), name.end(), '/', '-');  // Parameterised tests: "Name/Param".
   const fs::path dir = fs::temp_directory_path() /
                        ("octoscope-deploy-test-" + std::to_string(getpid()) + "-" + name);
   fs::remove_all(dir);
@@ -149,10 +150,14 @@ std::optional<json> ReadEvent(TlsWsClient& ws, const std::string& type) {
 }
 
 TEST_P(NginxSiteTest, CarriesAWebSocketSessionAndASlabUploadOverTls) {
-  ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY,
-                            {"--port", "0", "--cache", (dir_ / "cache").string(), "--token", kToken,
-                             "--ram-mb", "256", "--device", "cpu"},
-                            (dir_ / "server.log").string()))
+  // The server as behind a proxy: links carry the URL users open.
+  const std::string public_url =
+      "https://localhost:" + std::to_string(ports_.https) + GetParam().prefix + "/";
+  ASSERT_TRUE(server_.Start(
+      OCTOSCOPE_BINARY,
+      {"--port", "0", "--cache", (dir_ / "cache").string(), "--token", kToken, "--ram-mb", "256",
+       "--device", "cpu", "--state-dir", (dir_ / "state").string(), "--public-url", public_url},
+      (dir_ / "server.log").string()))
       << server_.error();
   RenderAndCheck(server_.port());
   ASSERT_EQ(proxy_.Start(nginx_, ports_.https), "");
@@ -259,6 +264,13 @@ TEST_P(NginxSiteTest, CarriesAWebSocketSessionAndASlabUploadOverTls) {
     }
   }
   EXPECT_LE(worst, 1) << "the final frame through the proxy differs from the voxels";
+
+  // A share link created through the proxy carries the public URL.
+  ASSERT_TRUE(ws.Send(json{{"type", "share_create"}, {"role", "viewer"}}.dump()));
+  auto share = ReadEvent(ws, "share_created");
+  ASSERT_TRUE(share.has_value());
+  const std::string share_token = (*share)["token"];
+  EXPECT_EQ((*share)["url"], public_url + "?share=" + share_token);
   ws.Close();
 
   // Everything above went through nginx.
@@ -482,13 +494,18 @@ TEST_F(InstallScriptTest, TheInstalledBinaryServesTheInstalledWebClient) {
   // Mark the installed page, so that it can be told from the checkout's.
   const fs::path index = destdir_ / "opt/octoscope/share/octoscope/web/index.html";
   const std::string page = ReadFile(index) + "<!-- installed copy -->\n";
+  // The installed example config is accepted as it is (the strict parser knows every key);
+  // flags override what would touch the machine's own folders.
+  fs::create_directories(dir_ / "scans");
   fs::permissions(index, fs::perms::owner_write, fs::perm_options::add);
   WriteFile(index, page);
-  ASSERT_TRUE(server_.Start(
-      (destdir_ / "opt/octoscope/bin/octoscope").string(),
-      {"--port", "0", "--cache", (dir_ / "cache").string(), "--token-file",
-       (destdir_ / "etc/octoscope/token").string(), "--ram-mb", "128", "--device", "cpu"},
-      (dir_ / "server.log").string()))
+  ASSERT_TRUE(server_.Start((destdir_ / "opt/octoscope/bin/octoscope").string(),
+                            {"--config", (destdir_ / "etc/octoscope/config.json").string(),
+                             "--data", (dir_ / "scans").string(), "--port", "0", "--cache",
+                             (dir_ / "cache").string(), "--state-dir", (dir_ / "state").string(),
+                             "--token-file", (destdir_ / "etc/octoscope/token").string(),
+                             "--ram-mb", "128", "--device-mb", "64", "--device", "cpu"},
+                            (dir_ / "server.log").string()))
       << server_.error() << ReadFile(dir_ / "server.log");
   const std::string token = ReadFile(destdir_ / "etc/octoscope/token").substr(0, 64);
   EXPECT_EQ(server_.token(), token);
