@@ -15,6 +15,10 @@ packages=(
   clang libclang-rt-14-dev
   python3-numpy python3-zarr python3-numcodecs python3-h5py
   nodejs chromium
+  # The deploy tests (tests/deploy): nginx and a certificate made with openssl in front of the
+  # server, a TLS client (libssl-dev), systemd-analyze. They run nginx as their own process; the
+  # packaged nginx service is not needed (`systemctl disable --now nginx` where it is unwanted).
+  nginx openssl libssl-dev systemd
 )
 
 # Skip apt entirely when everything is already there (fast re-runs, offline machines).

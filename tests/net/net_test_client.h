@@ -230,6 +230,48 @@ inline int StatusOf(std::string_view reply) {
   return std::stoi(std::string(reply.substr(9, 3)));
 }
 
+// Runs `ioc` until `done`; past `timeout` cancels `stream`'s socket (and with it the operation)
+// and collects the handler. False on timeout.
+template <typename Stream>
+bool RunOrCancel(asio::io_context& ioc, Stream& stream, const bool& done,
+                 std::chrono::steady_clock::duration timeout = kClientTimeout) {
+  if (RunUntil(ioc, done, timeout)) return true;
+  beast::get_lowest_layer(stream).cancel();
+  RunUntil(ioc, done, std::chrono::seconds(5));
+  return false;
+}
+
+struct WsMessage {
+  bool ok = false;  // False: error or timeout (see error).
+  bool binary = false;
+  std::string data;
+  beast::error_code error;
+};
+
+// Reads one message of the WebSocket `ws` (any next layer: TCP, TLS) within `timeout`.
+template <typename WebSocket>
+WsMessage ReadWsMessage(asio::io_context& ioc, WebSocket& ws, beast::flat_buffer& buffer,
+                        std::chrono::steady_clock::duration timeout) {
+  WsMessage m;
+  bool done = false;
+  ws.async_read(buffer, [&](beast::error_code ec, size_t) {
+    m.error = ec;
+    m.ok = !ec;
+    done = true;
+  });
+  if (!RunOrCancel(ioc, ws, done, timeout)) {
+    m.ok = false;
+    m.error = asio::error::timed_out;
+    return m;
+  }
+  if (m.ok) {
+    m.binary = ws.got_binary();
+    m.data = beast::buffers_to_string(buffer.data());
+    buffer.consume(buffer.size());
+  }
+  return m;
+}
+
 // A WebSocket client; every operation gives up after the timeout.
 class WsClient {
  public:
@@ -278,36 +320,11 @@ class WsClient {
     return !last_error_;
   }
 
-  struct Message {
-    bool ok = false;  // False: error or timeout (see error).
-    bool binary = false;
-    std::string data;
-    beast::error_code error;
-  };
+  using Message = WsMessage;
 
   // Reads one message within `timeout`.
   Message Read(std::chrono::steady_clock::duration timeout = kClientTimeout) {
-    Message m;
-    bool done = false;
-    ws_.async_read(buffer_, [&](beast::error_code ec, size_t) {
-      m.error = ec;
-      m.ok = !ec;
-      done = true;
-    });
-    if (!RunUntil(ioc_, done, timeout)) {
-      // Timed out: cancel the read (and with it the connection) and collect the handler.
-      beast::get_lowest_layer(ws_).cancel();
-      RunUntil(ioc_, done, std::chrono::seconds(5));
-      m.ok = false;
-      m.error = asio::error::timed_out;
-      return m;
-    }
-    if (m.ok) {
-      m.binary = ws_.got_binary();
-      m.data = beast::buffers_to_string(buffer_.data());
-      buffer_.consume(buffer_.size());
-    }
-    return m;
+    return ReadWsMessage(ioc_, ws_, buffer_, timeout);
   }
 
   // Reads until the server's close frame; returns its code (0 if the connection ended without
