@@ -7,13 +7,10 @@
 # tests/io/zarr_fuzz_replay_test.cpp, tests/protocol/ws_fuzz_replay_test.cpp) run every time.
 find_program(OCTOSCOPE_CLANGXX clang++)
 find_program(OCTOSCOPE_CLANG clang)
-if(OCTOSCOPE_CLANGXX AND OCTOSCOPE_CLANG)
-  set(fuzz_default ON)
-else()
-  set(fuzz_default OFF)
-endif()
+# Off until a full run of the fuzz build has been checked on the CI machine (then: ON when clang
+# is found).
 option(OCTOSCOPE_FUZZ_TESTS "Fuzz each harness for a bounded time in ctest (needs clang + libFuzzer)"
-  ${fuzz_default})
+  OFF)
 # Seconds of fuzzing per harness (ctest entries fuzz.HARNESS, label "fuzz").
 set(OCTOSCOPE_FUZZ_SECONDS "ws_message_fuzzer=20;dataset_json_fuzzer=6;zarr_metadata_fuzzer=6;chunk_codec_fuzzer=6;zarr_store_fuzzer=8;tiff_ome_fuzzer=10"
   CACHE STRING "HARNESS=SECONDS pairs of the fuzz ctest entries")
