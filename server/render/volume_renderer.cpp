@@ -126,6 +126,9 @@ struct VolumeRenderer::Impl {
   std::map<std::pair<int, bool>, ClKernel> kernels;
   ClMem counters;  // OCTO_COUNTER_WORDS uints, cleared before every pass.
   ClMem dummy;     // Stands in for the ray-state buffers of full frames.
+  // Kernel ms per ray of the last refinement passes (0 = none yet): sizes the row bands of
+  // refinements with a pass target.
+  double refine_ms_per_ray = 0;
   std::unique_ptr<FrameBuffers> own_buffers;  // Full frames of callers that pass none.
 
   Result<cl_kernel> Kernel(RenderMode mode, bool refine) {
@@ -145,7 +148,8 @@ struct VolumeRenderer::Impl {
   // (finished rays, samples). Adds the kernel time to stats.
   Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
                  cl_mem image, cl_mem ray_next, cl_mem ray_acc, cl_mem ray_extreme, int width,
-                 int height, uint32_t* finished, uint64_t* samples, FrameStats* stats) {
+                 int height, uint32_t* finished, uint64_t* samples, FrameStats* stats,
+                 int first_row = 0) {
     const uint32_t zeros[OCTO_COUNTER_WORDS] = {0, 0, 0, 0};
     OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
     const auto bricks = octree.brick_buffers();
@@ -155,7 +159,7 @@ struct VolumeRenderer::Impl {
         in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
         octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme));
     const Clock::time_point start = Clock::now();
-    OCTO_RETURN_IF_ERROR(Enqueue(kernel, width, height));
+    OCTO_RETURN_IF_ERROR(Enqueue(kernel, width, height, first_row));
     OCTO_RETURN_IF_ERROR(context->Finish());
     stats->ms_kernel += MsSince(start);
     uint32_t words[OCTO_COUNTER_WORDS];
@@ -168,8 +172,9 @@ struct VolumeRenderer::Impl {
 
   // One work item per pixel, 2-D over the image in tiles of kTile x kTile (rounded up; the kernel
   // ignores work items outside the image): the rays of a work group are neighbours and read the
-  // same bricks.
-  Status Enqueue(cl_kernel kernel, int width, int height) const {
+  // same bricks. A band of rows starts at `first_row` (a multiple of kTile; the global offset
+  // keeps the kernel's pixel coordinates) and is `height` rows high.
+  Status Enqueue(cl_kernel kernel, int width, int height, int first_row = 0) const {
     if (width <= 0 || height <= 0) return Status::Ok();
     const auto round_up = [](int n) {
       return static_cast<size_t>((n + kTile - 1) / kTile * kTile);
@@ -182,7 +187,8 @@ struct VolumeRenderer::Impl {
         OCTO_CL(clGetKernelWorkGroupInfo(kernel, context->device_id(), CL_KERNEL_WORK_GROUP_SIZE,
                                          sizeof(max_group), &max_group, nullptr)));
     const bool tiles = max_group >= size_t{kTile} * kTile;
-    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 2, nullptr, global,
+    const size_t offset[2] = {0, static_cast<size_t>(first_row)};
+    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 2, offset, global,
                                           tiles ? local : nullptr, 0, nullptr, nullptr));
   }
 
@@ -216,8 +222,24 @@ struct Refinement::State {
   int width = 0;
   int height = 0;
   uint64_t finished = 0;
-  int stalled_passes = 0;          // Consecutive passes without progress.
+  int stalled_passes = 0;          // Consecutive sweeps without progress.
   int stalled_without_upload = 0;  // Of which consecutive ones that uploaded nothing either.
+  // Row bands (FrameOptions::pass_target_ms): one pass runs one band, again while its passes
+  // upload bricks, then the next one with unfinished rays. Bands are cut in the first sweep, each
+  // as high as the measured speed allows (whole tiles; the first one a single tile row when no
+  // speed is known), and kept afterwards (their finished counts stay exact). A sweep visits every
+  // band with unfinished rays; progress is judged per sweep (a band whose rays all wait for
+  // bricks may stand still while others advance).
+  struct Band {
+    int first_row = 0;
+    int rows = 0;
+    uint64_t finished = 0;
+  };
+  std::vector<Band> bands;
+  int unvisited_row = 0;  // Rows from here on belong to no band yet.
+  size_t next_band = 0;
+  uint64_t sweep_finished = 0, sweep_samples = 0, sweep_uploaded = 0;
+  bool sweep_waiting = false, sweep_unavailable = false;
 };
 
 Refinement::~Refinement() = default;
@@ -442,22 +464,53 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   if (s.finished >= pixels) return 1.0;
   DeviceOctree& octree = *device_octree_;
   OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(s.mode, true));
+  // This pass's band: the next cut one with unfinished rays, else a new one below them.
+  const uint64_t width = static_cast<uint64_t>(s.width);
+  auto unfinished = [&](const Refinement::State::Band& b) {
+    return b.finished < static_cast<uint64_t>(b.rows) * width;
+  };
+  while (s.next_band < s.bands.size() && !unfinished(s.bands[s.next_band])) ++s.next_band;
+  if (s.next_band == s.bands.size() && s.unvisited_row >= s.height) {
+    s.next_band = 0;  // A new sweep.
+    while (!unfinished(s.bands[s.next_band])) ++s.next_band;
+  }
+  if (s.next_band == s.bands.size()) {
+    int rows = s.height - s.unvisited_row;
+    if (s.options.pass_target_ms > 0) {
+      const double rays =
+          impl_->refine_ms_per_ray > 0 ? s.options.pass_target_ms / impl_->refine_ms_per_ray : 0.0;
+      const double tiles = std::floor(rays / static_cast<double>(width) / kTile);
+      rows = static_cast<int>(std::clamp(tiles * kTile, double{kTile}, static_cast<double>(rows)));
+    }
+    s.bands.push_back({s.unvisited_row, rows, 0});
+    s.unvisited_row += rows;
+  }
+  Refinement::State::Band& band = s.bands[s.next_band];
+  const int first_row = band.first_row;
+  const int rows = band.rows;
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
   uint32_t finished = 0;
   uint64_t samples = 0;
+  const double kernel_ms_before = stats.ms_kernel;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, s.inputs, frame, s.image, s.ray_next,
-                                      s.ray_acc, s.ray_extreme, s.width, s.height, &finished,
-                                      &samples, &stats));
+                                      s.ray_acc, s.ray_extreme, s.width, rows, &finished, &samples,
+                                      &stats, first_row));
+  // The speed of unfinished rays, for the bands cut later (a moving average).
+  const uint64_t ran = static_cast<uint64_t>(rows) * width - band.finished;
+  if (ran > 0 && samples > 0) {
+    const double ms_per_ray = (stats.ms_kernel - kernel_ms_before) / static_cast<double>(ran);
+    impl_->refine_ms_per_ray = impl_->refine_ms_per_ray > 0
+                                   ? 0.5 * impl_->refine_ms_per_ray + 0.5 * ms_per_ray
+                                   : ms_per_ray;
+  }
   // Paused rays hold no brick between passes: protect nothing but what this upload brings in
   // (the upload manager never evicts a brick it uploaded in the same call).
   UploadBudget budget = s.options.upload;
   budget.protect_frame = frame + 1;
   UploadStats upload;
   OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &upload));
-  const uint64_t uploaded = upload.uploaded;
-  // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
-  const bool waiting = upload.unavailable > 0 || upload.deferred > 0;
+  band.finished += finished;
   s.finished += finished;
   stats.passes += 1;
   stats.samples += samples;
@@ -466,23 +519,40 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   stats.pass_finished.push_back(fraction);
   stats.final = s.finished >= pixels;
   stats.ms_total += MsSince(start);
-  // Every unfinished ray waits for a brick: a pass that neither advanced a ray nor uploaded
+  // The sweep so far; it ends after the last band with unfinished rays.
+  s.sweep_finished += finished;
+  s.sweep_samples += samples;
+  s.sweep_uploaded += upload.uploaded;
+  // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
+  s.sweep_waiting = s.sweep_waiting || upload.unavailable > 0 || upload.deferred > 0;
+  s.sweep_unavailable = s.sweep_unavailable || upload.unavailable > 0;
+  // A band whose pass brought bricks in runs again next (its rays use them before another band's
+  // uploads could evict them: with a small brick buffer, bands taking turns would thrash).
+  if (upload.uploaded > 0 && unfinished(band)) return fraction;
+  ++s.next_band;
+  while (s.next_band < s.bands.size() && !unfinished(s.bands[s.next_band])) ++s.next_band;
+  if (stats.final || s.next_band < s.bands.size() || s.unvisited_row < s.height) return fraction;
+  s.next_band = 0;
+  // Every unfinished ray waits for a brick: a sweep that neither advanced a ray nor uploaded
   // anything, with nothing left waiting, will never progress (nor will endlessly many that keep
-  // uploading in vain). Passes that wait for the disk do not count: the disk sets their pace.
-  if (finished == 0 && samples == 0 && !stats.final && upload.unavailable == 0) {
+  // uploading in vain). Sweeps that wait for the disk do not count: the disk sets their pace.
+  if (s.sweep_finished == 0 && s.sweep_samples == 0 && !s.sweep_unavailable) {
     ++s.stalled_passes;
-    s.stalled_without_upload = uploaded == 0 && !waiting ? s.stalled_without_upload + 1 : 0;
-    // One pass without an upload can happen while construction changes the tree between Sync
+    s.stalled_without_upload =
+        s.sweep_uploaded == 0 && !s.sweep_waiting ? s.stalled_without_upload + 1 : 0;
+    // One sweep without an upload can happen while construction changes the tree between Sync
     // and Upload (a wanted node lost its brick); the next Sync sees it. Three in a row cannot.
     if (s.stalled_without_upload >= 3 || s.stalled_passes > 1000) {
       return InternalError("refinement makes no progress: " + std::to_string(pixels - s.finished) +
                            " rays wait for bricks that cannot be made resident (" +
                            std::to_string(octree.slot_count()) + " brick slots)");
     }
-  } else if (finished != 0 || samples != 0) {
+  } else if (s.sweep_finished != 0 || s.sweep_samples != 0) {
     s.stalled_passes = 0;
     s.stalled_without_upload = 0;
   }
+  s.sweep_finished = s.sweep_samples = s.sweep_uploaded = 0;
+  s.sweep_waiting = s.sweep_unavailable = false;
   return fraction;
 }
 

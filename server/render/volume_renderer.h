@@ -92,6 +92,13 @@ struct FrameOptions {
   // Which view this frame belongs to (e.g. the render service's view id): the adaptive biases
   // of full frames (brick-buffer pressure, frame-time target) are tracked per view.
   uint64_t view = 0;
+  // Refinement: a kernel-time target per pass in ms (0 = every pass covers the whole image).
+  // Passes then cover bands of rows (whole 8-row tiles, cut in the first sweep from the
+  // renderer's measured refinement speed), band after band (a band runs again while its passes
+  // upload bricks), skipping bands whose rays all finished: a refinement of a huge image (a 4K
+  // screenshot) advances in short passes, so the render service can run other views' frames
+  // between them. The image is the same.
+  double pass_target_ms = 0;
   // Full frames: a kernel-time target in ms (0 = none). While frames take longer, the view's
   // frames get coarser (an extra fractional lod bias, see the file comment); when they are
   // much faster, finer again, down to the caller's lod_bias.

@@ -13,8 +13,7 @@
 #include <string>
 #include <vector>
 
-#include "app/server_process.h"
-#include "app/ws_frames.h"
+#include "app/serve_fixture.h"
 #include "encode/png_test_decoder.h"
 #include "net/net_test_client.h"
 #include "protocol/frame_header.h"
@@ -22,135 +21,12 @@
 namespace octoscope::app {
 namespace {
 
-namespace fs = std::filesystem;
-using json = nlohmann::json;
-namespace http = boost::beast::http;
-using net::testing::Fetch;
-using net::testing::WsClient;
-using std::chrono::milliseconds;
-using std::chrono::seconds;
-using testing::Ack;
+using namespace testing::serve_fixture;  // NOLINT
 using testing::Frame;
-using testing::ReadEvent;
-using testing::ReadFrameUntil;
-using testing::ServerProcess;
+using testing::kToken;
 using testing::TestVolume;
 
-constexpr char kToken[] = "test-token-0123456789abcdef";
-
-class ServeTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    dir_ = fs::temp_directory_path() /
-           ("octoscope-serve-test-" + std::to_string(getpid()) + "-" +
-            ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-    ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY,
-                              {"--port", "0", "--cache", (dir_ / "cache").string(), "--token",
-                               kToken, "--ram-mb", "256", "--device", "cpu"},
-                              (dir_ / "server.log").string()))
-        << server_.error();
-  }
-  void TearDown() override {
-    if (server_.running()) {
-      EXPECT_EQ(server_.Stop(), 0);
-    }
-    fs::remove_all(dir_);
-  }
-
-  std::string Auth(const std::string& target) const {
-    return target + (target.find('?') == std::string::npos ? "?" : "&") + "token=" + kToken;
-  }
-
-  // Creates a stream of the test volume's shape and sends all of it; returns its id.
-  std::string StreamTestVolume(const TestVolume& v, bool send = true) {
-    auto created = Fetch(server_.port(), http::verb::post, Auth("/api/datasets"), {},
-                         json{{"name", "test stream"},
-                              {"size", {v.sx, v.sy, v.sz}},
-                              {"channels", 2},
-                              {"dtype", "uint16"},
-                              {"spacing", {0.5, 0.5, 2.0}}}
-                             .dump());
-    EXPECT_EQ(created.status, 201) << created.body;
-    const std::string id = json::parse(created.body).value("id", "");
-    if (!send) return id;
-    for (int c = 0; c < 2; ++c) {
-      // Single planes first (how an acquisition sends them), then the rest in one slab.
-      for (int64_t z = 0; z < 5; ++z) PutSlab(id, c, z, 1, v.Planes(c, z, 1), 200);
-      PutSlab(id, c, 5, v.sz - 5, v.Planes(c, 5, v.sz - 5), 200);
-    }
-    return id;
-  }
-
-  net::testing::HttpResult PutSlab(const std::string& id, int c, int64_t z, int64_t depth,
-                                   std::string body, int expect_status) {
-    auto r = Fetch(server_.port(), http::verb::put,
-                   Auth("/api/datasets/" + id + "/slabs?z=" + std::to_string(z) +
-                        "&depth=" + std::to_string(depth) + "&channel=" + std::to_string(c)),
-                   {{"Content-Type", "application/octet-stream"}}, std::move(body));
-    EXPECT_EQ(r.status, expect_status) << r.body;
-    return r;
-  }
-
-  bool ConnectWs(WsClient& ws) {
-    const std::string error = ws.Connect(server_.port(), Auth("/ws"));
-    EXPECT_EQ(error, "");
-    return error.empty();
-  }
-
-  // Opens `id` with an orthographic z camera that maps pixel (x, y) onto voxel column (x, y),
-  // channel 0 alone in MIP with `window` over [0, window_hi], lossless finals, the 3-D viewport
-  // at the volume's size.
-  static void OpenOrthoMip(WsClient& ws, const std::string& id, const TestVolume& v,
-                           double window_hi) {
-    const double cx = v.sx * 0.5 / 2, cy = v.sy * 0.5 / 2, cz = v.sz * 2.0 / 2;
-    json camera = {{"projection", "ortho"},
-                   {"position", {cx, cy, -100.0}},
-                   {"target", {cx, cy, cz}},
-                   {"up", {0, -1, 0}},
-                   {"ortho_height", v.sy * 0.5}};
-    json params = {{"mode", "mip"},
-                   {"channels",
-                    {{{"enabled", true},
-                      {"color", {1, 1, 1}},
-                      {"window", window_hi},
-                      {"level", window_hi / 2},
-                      {"gamma", 1}},
-                     {{"enabled", false}}}}};
-    ASSERT_TRUE(ws.Send(json{{"type", "hello"}, {"client", "serve_test"}, {"protocol", 1}}.dump()));
-    ASSERT_TRUE(ReadEvent(ws, "welcome").has_value());
-    ASSERT_TRUE(ws.Send(json{{"type", "quality"}, {"lossless_final", true}}.dump()));
-    ASSERT_TRUE(ws.Send(
-        json{{"type", "open"}, {"dataset", id}, {"state", {{"camera", camera}, {"params", params}}}}
-            .dump()));
-    auto opened = ReadEvent(ws, "opened");
-    ASSERT_TRUE(opened.has_value());
-    EXPECT_EQ((*opened)["dataset"]["id"], id);
-    ASSERT_TRUE(ws.Send(
-        json{{"type", "viewport"}, {"view", "3d"}, {"width", v.sx}, {"height", v.sy}, {"dpr", 1}}
-            .dump()));
-  }
-
-  // Max |pixel − expected| over the image, in 1/255 steps, for channel 0 through the window.
-  static int MaxMipError(const testing::DecodedPng& png, const TestVolume& v, double window_hi) {
-    int worst = 0;
-    for (int64_t y = 0; y < v.sy; ++y) {
-      for (int64_t x = 0; x < v.sx; ++x) {
-        const double t = std::clamp(v.ColumnMax(0, x, y) / window_hi, 0.0, 1.0);
-        const int expected = static_cast<int>(std::lround(t * 255));
-        for (int c = 0; c < 3; ++c) {
-          worst = std::max(
-              worst, std::abs(png.At(static_cast<int>(x), static_cast<int>(y), c) - expected));
-        }
-      }
-    }
-    return worst;
-  }
-
-  fs::path dir_;
-  ServerProcess server_;
-};
+class ServeTest : public testing::ServeFixture {};
 
 TEST_F(ServeTest, HealthIsOpenEverythingElseNeedsTheToken) {
   auto health = Fetch(server_.port(), http::verb::get, "/api/health");
