@@ -16,6 +16,8 @@
 #include <limits>
 #include <map>
 #include <set>
+#include <span>
+#include <string>
 #include <thread>
 #include <tuple>
 #include <vector>
@@ -523,6 +525,62 @@ TEST(DeviceOctreeTest, TwoMirrorsOfOneTreeEachGetEveryChange) {
     ASSERT_TRUE(dev->Sync().ok());
     EXPECT_EQ(FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity()), 1), -1);
   }
+}
+
+// Both transfer paths (mapped slots; pinned staging ring + non-blocking writes), both stored
+// types: a split buffer of 10 slots, a staging ring of 3 bricks (it wraps), uploads of 7 bricks
+// at a time that evict: after every Upload each resident slot holds exactly ReadBrick's bytes.
+class DeviceOctreeUploadPathTest
+    : public ::testing::TestWithParam<std::tuple<UploadPath, volume::DataType>> {};
+
+INSTANTIATE_TEST_SUITE_P(
+    Paths, DeviceOctreeUploadPathTest,
+    ::testing::Combine(::testing::Values(UploadPath::kMapped, UploadPath::kStaged),
+                       ::testing::Values(volume::DataType::kUint16, volume::DataType::kUint8)),
+    [](const auto& info) {
+      return std::string(std::get<0>(info.param) == UploadPath::kMapped ? "Mapped" : "Staged") +
+             (std::get<1>(info.param) == volume::DataType::kUint8 ? "Uint8" : "Uint16");
+    });
+
+TEST_P(DeviceOctreeUploadPathTest, EveryResidentSlotHoldsItsBrick) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const auto [path, type] = GetParam();
+  auto scene = Scene(NoiseSpec(type, 2));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  const uint64_t brick = tree.geometry().brick_samples() * 2;
+  DeviceOctreeOptions options;
+  options.upload_path = path;
+  options.staging_bytes = 3 * brick;
+  options.max_allocation_bytes = 3 * brick + brick / 2;
+  options.brick_buffer_bytes = 10 * brick;
+  auto dev = MakeDevice(scene->tree.get(), options);
+  ASSERT_NE(dev, nullptr);
+  EXPECT_EQ(dev->upload_path(), path);
+  ASSERT_EQ(dev->allocation_count(), 4);
+  const std::vector<uint32_t> leaves = Ids(Bricked(tree, 0));
+  ASSERT_GT(leaves.size(), 30u);
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.max_bricks = 7;
+  budget.protect_frame = 1;  // No frame ran: every slot's stamp is 0, so all are evictable.
+  uint64_t evicted = 0;
+  for (size_t first = 0; first < leaves.size(); first += 5) {
+    const std::span<const uint32_t> some =
+        std::span(leaves).subspan(first, std::min<size_t>(5, leaves.size() - first));
+    UploadStats stats;
+    ASSERT_TRUE(dev->Upload(some, budget, &stats).ok());
+    EXPECT_GT(stats.uploaded, 0u);
+    evicted += stats.evicted;
+    for (const NodeSnapshot& node : Bricked(tree)) {
+      const std::optional<uint32_t> slot = dev->SlotOf(node.id);
+      if (!slot.has_value()) continue;
+      ASSERT_EQ(DeviceBrick(*dev, *slot), HostBrick(tree, node.id))
+          << "node " << node.id << " slot " << *slot << " after leaves from " << first;
+    }
+  }
+  EXPECT_GT(evicted, 0u);
+  EXPECT_EQ(dev->resident_bricks(), 10u);
 }
 
 TEST(DeviceOctreeTest, SplitBrickBufferHoldsEveryBrickInItsAllocation) {
