@@ -64,18 +64,37 @@ struct Row {
   double mb_per_s;
 };
 
-Status Run(const Flags& flags, const std::string& dir) {
-  OCTO_ASSIGN_OR_RETURN(const int64_t mb, flags.GetInt("mb", 256, 16, 1 << 20));
-  OCTO_ASSIGN_OR_RETURN(const int64_t rounds, flags.GetInt("rounds", 7, 2, 1000));
-  const std::string path_name = flags.Get("path").value_or("auto");
+struct Settings {
+  std::string dir;
+  std::string device;
   render::UploadPath path = render::UploadPath::kAuto;
-  if (path_name == "mapped") {
-    path = render::UploadPath::kMapped;
-  } else if (path_name == "staged") {
-    path = render::UploadPath::kStaged;
-  } else if (path_name != "auto") {
+  int64_t mb = 256;
+  int64_t rounds = 7;
+};
+
+// The flags' values; a bad one is a usage error.
+Result<Settings> ParseSettings(const Flags& flags) {
+  Settings s;
+  s.dir = flags.positionals()[0];
+  s.device = flags.Get("device").value_or("auto");
+  OCTO_ASSIGN_OR_RETURN(s.mb, flags.GetInt("mb", 256, 16, 1 << 20));
+  OCTO_ASSIGN_OR_RETURN(s.rounds, flags.GetInt("rounds", 7, 2, 1000));
+  const std::string path = flags.Get("path").value_or("auto");
+  if (path == "mapped") {
+    s.path = render::UploadPath::kMapped;
+  } else if (path == "staged") {
+    s.path = render::UploadPath::kStaged;
+  } else if (path != "auto") {
     return InvalidArgumentError("--path must be auto, mapped or staged");
   }
+  return s;
+}
+
+Status Run(const Settings& settings) {
+  const std::string& dir = settings.dir;
+  const int64_t mb = settings.mb;
+  const int64_t rounds = settings.rounds;
+  const render::UploadPath path = settings.path;
   const uint64_t ram_bytes = static_cast<uint64_t>(DefaultRamMb()) << 20;
   OCTO_ASSIGN_OR_RETURN(std::unique_ptr<LoadedOctree> loaded, OpenCacheDirectory(dir, ram_bytes));
   octree::Octree& tree = loaded->octree();
@@ -105,8 +124,7 @@ Status Run(const Flags& flags, const std::string& dir) {
                                                std::span(ids).subspan(half)};
 
   // 2. The device and the mirror with n / 2 slots.
-  OCTO_ASSIGN_OR_RETURN(render::DeviceInfo device,
-                        render::ChooseDevice(flags.Get("device").value_or("auto")));
+  OCTO_ASSIGN_OR_RETURN(render::DeviceInfo device, render::ChooseDevice(settings.device));
   OCTO_ASSIGN_OR_RETURN(render::ComputeContext context, render::ComputeContext::Create(device));
   render::DeviceOctreeOptions options;
   options.brick_buffer_bytes = half * geometry.brick_samples() * 2;
@@ -216,8 +234,13 @@ int RunBenchUpload(std::span<const std::string> args) {
     std::printf("%s", flags.Help().c_str());
     return kExitOk;
   }
-  const std::string dir = flags.positionals()[0];
-  if (Status s = Run(flags, dir); !s.ok()) return ReportBadInput(kCommand, dir, s);
+  Result<Settings> settings = ParseSettings(flags);
+  if (!settings.ok()) {
+    std::fprintf(stderr, "%s: %s\n\n%s", kCommand, settings.status().message().c_str(),
+                 flags.Help().c_str());
+    return kExitUsage;
+  }
+  if (Status s = Run(*settings); !s.ok()) return ReportBadInput(kCommand, settings->dir, s);
   return kExitOk;
 }
 
