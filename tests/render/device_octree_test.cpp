@@ -583,6 +583,52 @@ TEST_P(DeviceOctreeUploadPathTest, EveryResidentSlotHoldsItsBrick) {
   EXPECT_EQ(dev->resident_bricks(), 10u);
 }
 
+// A full buffer and bricks whose pages are not in RAM: the reads fail before the victims'
+// slots (the reads' destinations on the mapped path) are touched, nothing is evicted and every
+// resident slot still holds its own brick.
+TEST_P(DeviceOctreeUploadPathTest, FailedReadsEvictNothingAndLeaveVictimsIntact) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const auto [path, type] = GetParam();
+  SceneSpec spec = NoiseSpec(type, 1);
+  spec.page_bytes = 4 * 10 * 10 * 10 * (type == volume::DataType::kUint8 ? 1 : 2);
+  auto scene = Scene(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  DeviceOctreeOptions options;
+  options.upload_path = path;
+  options.brick_reads = BrickReads::kResidentOnly;
+  options.brick_buffer_bytes = 8 * tree.geometry().brick_samples() * 2;
+  auto dev = MakeDevice(&tree, options);
+  ASSERT_NE(dev, nullptr);
+  ASSERT_EQ(dev->slot_count(), 8u);
+  const int root = tree.geometry().root_level();
+  const std::vector<uint32_t> coarse = Ids(Bricked(tree, root - 1));
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.protect_frame = 1;  // Every stamp is 0: all slots are evictable.
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload(coarse, budget, &stats).ok());
+  ASSERT_EQ(dev->resident_bricks(), 8u);
+  std::map<uint32_t, std::vector<uint16_t>> before;
+  for (const NodeSnapshot& n : Bricked(tree)) {
+    if (const auto slot = dev->SlotOf(n.id)) before[n.id] = HostBrick(tree, n.id);
+  }
+  // Every page dropped from RAM, then leaves requested.
+  ASSERT_TRUE(tree.Flush().ok());
+  ASSERT_TRUE(scene->cache->SetBudget(0).ok());
+  ASSERT_TRUE(scene->cache->SetBudget(uint64_t{1} << 30).ok());
+  ASSERT_TRUE(dev->Upload(Ids(Bricked(tree, 0)), budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 0u);
+  EXPECT_EQ(stats.evicted, 0u);
+  EXPECT_GT(stats.unavailable, 0u);
+  EXPECT_EQ(dev->resident_bricks(), 8u);
+  for (const auto& [id, bytes] : before) {
+    const std::optional<uint32_t> slot = dev->SlotOf(id);
+    ASSERT_TRUE(slot.has_value()) << id;
+    EXPECT_EQ(DeviceBrick(*dev, *slot), bytes) << "node " << id;
+  }
+}
+
 TEST(DeviceOctreeTest, SplitBrickBufferHoldsEveryBrickInItsAllocation) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   auto scene = Scene(NoiseSpec(volume::DataType::kUint8, 2));
