@@ -29,6 +29,7 @@ if ! "$py" -c 'import vtk' 2>/dev/null || ! command -v xvfb-run >/dev/null; then
   exit 2
 fi
 export PYTHONPATH="$root/bench${PYTHONPATH:+:$PYTHONPATH}"
+export PYTHONDONTWRITEBYTECODE=1  # No __pycache__ in the checkout.
 ms() { date +%s%N | awk '{printf "%.1f", $1 / 1e6}'; }
 
 # 1. Inputs (not timed): the demo scan (one uint16 channel, uncompressed), its Octoscope cache,
