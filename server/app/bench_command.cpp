@@ -1144,8 +1144,9 @@ int RunBenchRender(std::span<const std::string> args) {
 
 int RunBench(std::span<const std::string> args) {
   constexpr const char* kUsage =
-      "usage: octoscope bench render [INPUT] [options]\n\n"
-      "Benchmarks. 'octoscope bench render --help' describes the renderer benchmark.\n";
+      "usage: octoscope bench render|upload [INPUT] [options]\n\n"
+      "Benchmarks. 'octoscope bench render --help' describes the renderer benchmark,\n"
+      "'octoscope bench upload --help' the brick upload benchmark.\n";
   if (args.empty()) {
     std::fprintf(stderr, "%s", kUsage);
     return kExitUsage;
@@ -1155,7 +1156,8 @@ int RunBench(std::span<const std::string> args) {
     return kExitOk;
   }
   if (args[0] == "render") return RunBenchRender(args.subspan(1));
-  std::fprintf(stderr, "octoscope bench: unknown benchmark '%s' (known: render)\n",
+  if (args[0] == "upload") return RunBenchUpload(args.subspan(1));
+  std::fprintf(stderr, "octoscope bench: unknown benchmark '%s' (known: render, upload)\n",
                Printable(args[0]).c_str());
   return kExitUsage;
 }

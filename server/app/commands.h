@@ -20,7 +20,9 @@ int RunDemo(std::span<const std::string> args);    // app/demo_command.cpp
 int RunBuild(std::span<const std::string> args);   // app/build_command.cpp
 int RunRender(std::span<const std::string> args);  // app/render_command.cpp
 int RunBench(std::span<const std::string> args);   // app/bench_command.cpp
-int RunServe(std::span<const std::string> args);   // app/serve_command.cpp
+// `bench upload`, dispatched by RunBench.
+int RunBenchUpload(std::span<const std::string> args);  // app/upload_bench_command.cpp
+int RunServe(std::span<const std::string> args);        // app/serve_command.cpp
 
 }  // namespace octoscope::app
 

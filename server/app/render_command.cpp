@@ -10,6 +10,7 @@
 #include <fstream>
 #include <memory>
 #include <optional>
+#include <span>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -19,12 +20,14 @@
 #include "app/volume_options.h"
 #include "dataset/display_defaults.h"
 #include "encode/image_encoder.h"
+#include "io/open_volume.h"
 #include "protocol/render_json.h"
 #include "protocol/render_report.h"
 #include "render/camera.h"
 #include "render/device.h"
 #include "render/device_octree.h"
 #include "render/program_cache.h"
+#include "render/reference_renderer.h"
 #include "render/render_params.h"
 #include "render/slice_overlay.h"
 #include "render/slice_renderer.h"
@@ -302,6 +305,10 @@ int RunRender(std::span<const std::string> args) {
       "                            histogram of all voxels); 'raw' = grey full-range channels",
       "display");
   flags.AddSwitch("stats-json", "print one JSON line of statistics on stdout");
+  flags.AddSwitch(
+      "cpu-reference",
+      "render with the double-precision CPU reference renderer instead (the\n"
+      "                            tests' oracle; one thread, slow; INPUT must be a scan)");
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
   flags.AddValue("brick-buffer-mb", "N", "device brick buffer in MiB", "512");
   flags.AddValue("lod-bias", "F", "level-of-detail bias (+1: half resolution)", "0");
@@ -451,6 +458,37 @@ int RunRender(std::span<const std::string> args) {
   std::vector<render::SlicePlane> planes;
   for (const AxisPosition& item : plane_items) {
     planes.push_back({item.axis, PositionOrCentre(item, bounds), kPlaneColours[item.axis]});
+  }
+
+  // 4b. The CPU reference (benchmarks' oracle): the scan in RAM as stored values, one image.
+  if (flags.Has("cpu-reference")) {
+    if (slice || !planes.empty()) return Usage("--cpu-reference renders 3-D views only", flags);
+    if (std::error_code ec; std::filesystem::is_directory(input, ec)) {
+      return Fail(input, InvalidArgumentError("--cpu-reference needs the scan, not a cache"));
+    }
+    auto source = io::OpenVolume(input, *open_options);
+    if (!source.ok()) return Fail(input, source.status());
+    auto volume = render::ReferenceVolume::Load(**source, tree.value_maps,
+                                                static_cast<uint64_t>(*ram_mb) << 20);
+    if (!volume.ok()) return Fail(input, volume.status());
+    if (!(volume->spacing() == spacing)) {
+      // --spacing overrides the file's (the octree's info has them applied; the reader not).
+      std::vector<std::vector<uint16_t>> channels;
+      for (int c = 0; c < volume->channel_count(); ++c) {
+        const std::span<const uint16_t> data = volume->channel_data(c);
+        channels.emplace_back(data.begin(), data.end());
+      }
+      volume = render::ReferenceVolume::FromStored(volume->size(), spacing, volume->stored_type(),
+                                                   std::move(channels));
+      if (!volume.ok()) return Fail(input, volume.status());
+    }
+    auto image = render::RenderReference(*volume, *camera, params);
+    if (!image.ok()) return Fail(input, image.status());
+    if (Status s = EncodeAndWrite(*image, *format, static_cast<int>(*quality), *out_path);
+        !s.ok()) {
+      return Fail(*out_path, s);
+    }
+    return kExitOk;
   }
 
   // 5. The device, the octree mirrored on it, the renderer.

@@ -189,7 +189,7 @@ class Octree {
   std::optional<NodeSnapshot> GetNode(uint32_t id) const;
   // Copies the stored brick (geometry().brick_bytes() bytes) of node `id`. kNotFound when the node
   // does not exist or has no brick; kInvalidArgument when out.size() != brick_bytes. May wait for
-  // a page load (PageCache::Pin).
+  // a page load (PageCache::Pin). On any error `out` is untouched (DeviceOctree relies on it).
   Status ReadBrick(uint32_t id, std::span<std::byte> out) const;
   // ReadBrick for threads that must never wait for the disk (a render thread): kUnavailable when
   // the brick's page is not in RAM now (nothing copied; *page, when given, says which page to

@@ -87,8 +87,15 @@ struct DeviceOctree::Impl {
   std::set<uint32_t> stale;
   std::vector<uint64_t> slot_owner;                 // Per slot: reserved for this owner; 0 none.
   std::unordered_map<uint64_t, uint32_t> reserved;  // Owner -> slots reserved for it (> 0).
-  std::vector<std::byte> raw;                       // One stored brick as ReadBrick gives it.
-  std::vector<uint16_t> widened;                    // The same as uint16 for uint8 trees.
+  std::vector<std::byte> raw;  // One stored brick of a uint8 tree as ReadBrick gives it.
+
+  // --- Transfer (header, "Transfer"). ---
+  bool mapped_path = false;
+  std::vector<std::byte*> mapped;  // kMapped: per allocation, its mapping during an Upload.
+  ClMem staging;                   // kStaged: the pinned ring, mapped for the mirror's life.
+  std::byte* staging_ptr = nullptr;
+  uint64_t staging_bricks = 0;
+  uint64_t staging_next = 0;  // Ring bricks in use since the last wait.
 
   // --- Feedback. ---
   ClMem request_flags;
@@ -344,23 +351,93 @@ struct DeviceOctree::Impl {
     return Status::Ok();
   }
 
+  ~Impl() {
+    // Destructors never throw: a failure is logged.
+    if (staging_ptr != nullptr) {
+      ClLogError(
+          clEnqueueUnmapMemObject(cc->queue(), staging.get(), staging_ptr, 0, nullptr, nullptr),
+          "clEnqueueUnmapMemObject(staging)");
+      ClLogError(clFinish(cc->queue()), "clFinish");
+    }
+  }
+
+  uint64_t SlotsIn(uint32_t allocation) const {
+    return std::min<uint64_t>(slots_per_allocation,
+                              slot_node.size() - uint64_t{allocation} * slots_per_allocation);
+  }
+
+  // Where the brick for `slot` is read to: the slot itself (kMapped; the allocation is mapped on
+  // first use) or the next staging brick (kStaged; waits for the ring's writes when it is full).
+  Result<std::span<std::byte>> Destination(uint32_t slot) {
+    if (mapped_path) {
+      const uint32_t a = slot / slots_per_allocation;
+      if (mapped[a] == nullptr) {
+        cl_int err = CL_SUCCESS;
+        void* ptr = clEnqueueMapBuffer(cc->queue(), bricks[a].get(), CL_TRUE, CL_MAP_WRITE, 0,
+                                       SlotsIn(a) * device_brick_bytes, 0, nullptr, nullptr, &err);
+        OCTO_RETURN_IF_ERROR(ClCheck(err, "clEnqueueMapBuffer(brick allocation)"));
+        mapped[a] = static_cast<std::byte*>(ptr);
+      }
+      return std::span(mapped[a] + uint64_t{slot % slots_per_allocation} * device_brick_bytes,
+                       device_brick_bytes);
+    }
+    if (staging_next == staging_bricks) {
+      // The ring is full: its writes must have read it before it is refilled.
+      OCTO_RETURN_IF_ERROR(cc->Finish());
+      staging_next = 0;
+    }
+    return std::span(staging_ptr + staging_next * device_brick_bytes, device_brick_bytes);
+  }
+
+  // The brick at Destination(slot) is complete: kStaged sends it (non-blocking).
+  Status Commit(uint32_t slot) {
+    if (mapped_path) return Status::Ok();
+    const std::byte* src = staging_ptr + staging_next * device_brick_bytes;
+    ++staging_next;
+    const uint64_t offset = uint64_t{slot % slots_per_allocation} * device_brick_bytes;
+    return OCTO_CL(clEnqueueWriteBuffer(cc->queue(), bricks[slot / slots_per_allocation].get(),
+                                        CL_FALSE, offset, device_brick_bytes, src, 0, nullptr,
+                                        nullptr));
+  }
+
+  // Ends an Upload's transfers: unmaps the mapped allocations, waits for the staged writes.
+  Status FinishTransfers() {
+    Status first;
+    for (std::byte*& ptr : mapped) {
+      if (ptr == nullptr) continue;
+      const size_t a = static_cast<size_t>(&ptr - mapped.data());
+      Status unmapped =
+          OCTO_CL(clEnqueueUnmapMemObject(cc->queue(), bricks[a].get(), ptr, 0, nullptr, nullptr));
+      if (first.ok()) first = std::move(unmapped);
+      ptr = nullptr;
+    }
+    if (staging_next > 0) {
+      Status finished = cc->Finish();
+      if (first.ok()) first = std::move(finished);
+      staging_next = 0;
+    }
+    return first;
+  }
+
+  // Reads node `id`'s brick into `out` (device layout: uint16 samples), from RAM only when
+  // resident_only. Writes nothing to `out` on failure.
+  Status ReadInto(uint32_t id, std::span<std::byte> out, uint64_t* page) {
+    if (bytes_per_sample == 2) {
+      return resident_only ? tree->TryReadBrick(id, out, page) : tree->ReadBrick(id, out);
+    }
+    OCTO_RETURN_IF_ERROR(resident_only ? tree->TryReadBrick(id, raw, page)
+                                       : tree->ReadBrick(id, raw));
+    // uint8 trees: widened while copying into the destination.
+    uint16_t* dst = reinterpret_cast<uint16_t*>(out.data());
+    for (size_t i = 0; i < raw.size(); ++i) dst[i] = static_cast<uint16_t>(raw[i]);
+    return Status::Ok();
+  }
+
   Status Fill(const ClMem& buffer, size_t bytes) const {
     const cl_uint zero = 0;
     OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(cc->queue(), buffer.get(), &zero, sizeof(zero), 0,
                                                 bytes, 0, nullptr, nullptr));
     return cc->Finish();
-  }
-
-  // Writes the brick in `raw` into `slot` (widened to uint16 for uint8 trees).
-  Status WriteBrick(uint32_t slot) {
-    const void* data = raw.data();
-    if (bytes_per_sample == 1) {
-      for (size_t i = 0; i < widened.size(); ++i) widened[i] = static_cast<uint16_t>(raw[i]);
-      data = widened.data();
-    }
-    const uint32_t allocation = slot / slots_per_allocation;
-    const uint64_t offset = uint64_t{slot % slots_per_allocation} * device_brick_bytes;
-    return cc->WriteBuffer(bricks[allocation], offset, device_brick_bytes, data);
   }
 };
 
@@ -392,10 +469,25 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
   self->max_allocation_bytes_ = options.max_allocation_bytes;
   m.request_capacity = options.request_capacity;
   m.resident_only = options.brick_reads == BrickReads::kResidentOnly;
+  m.mapped_path =
+      options.upload_path == UploadPath::kMapped ||
+      (options.upload_path == UploadPath::kAuto && context->device().type == DeviceType::kCpu);
+  if (!m.mapped_path) {
+    // The pinned staging ring, mapped once for the mirror's life.
+    m.staging_bricks = std::max<uint64_t>(2, options.staging_bytes / m.device_brick_bytes);
+    const uint64_t bytes = m.staging_bricks * m.device_brick_bytes;
+    OCTO_ASSIGN_OR_RETURN(m.staging,
+                          context->CreateBuffer(CL_MEM_READ_WRITE | CL_MEM_ALLOC_HOST_PTR, bytes));
+    cl_int err = CL_SUCCESS;
+    void* ptr =
+        clEnqueueMapBuffer(context->queue(), m.staging.get(), CL_TRUE,
+                           CL_MAP_WRITE_INVALIDATE_REGION, 0, bytes, 0, nullptr, nullptr, &err);
+    OCTO_RETURN_IF_ERROR(ClCheck(err, "clEnqueueMapBuffer(staging)"));
+    m.staging_ptr = static_cast<std::byte*>(ptr);
+  }
   OCTO_RETURN_IF_ERROR(
       self->AllocateBricks(options.brick_buffer_bytes, options.max_allocation_bytes));
-  m.raw.resize(geometry.brick_bytes());
-  if (m.bytes_per_sample == 1) m.widened.resize(geometry.brick_samples());
+  if (m.bytes_per_sample == 1) m.raw.resize(geometry.brick_bytes());
 
   // Feedback buffers, zeroed (request_flags is created with the node buffer).
   OCTO_ASSIGN_OR_RETURN(
@@ -442,13 +534,16 @@ Status DeviceOctree::AllocateBricks(uint64_t brick_buffer_bytes, uint64_t max_al
   std::vector<ClMem> bricks;
   for (uint64_t a = 0; a < allocations; ++a) {
     const uint64_t slots = std::min(per_allocation, slot_count - a * per_allocation);
-    OCTO_ASSIGN_OR_RETURN(ClMem buffer,
-                          m.cc->CreateBuffer(CL_MEM_READ_ONLY, slots * m.device_brick_bytes));
+    // Mapped uploads: memory the host can map without a copy.
+    const cl_mem_flags flags =
+        CL_MEM_READ_ONLY | (m.mapped_path ? CL_MEM_ALLOC_HOST_PTR : cl_mem_flags{0});
+    OCTO_ASSIGN_OR_RETURN(ClMem buffer, m.cc->CreateBuffer(flags, slots * m.device_brick_bytes));
     bricks.push_back(std::move(buffer));
   }
   OCTO_ASSIGN_OR_RETURN(ClMem used, m.cc->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
   OCTO_RETURN_IF_ERROR(m.Fill(used, slot_count * 4));
   m.bricks = std::move(bricks);
+  m.mapped.assign(m.bricks.size(), nullptr);
   m.slot_used_buffer = std::move(used);
   m.slots_per_allocation = static_cast<uint32_t>(per_allocation);
   m.slot_node.assign(slot_count, kNoNode);
@@ -473,6 +568,7 @@ Status DeviceOctree::ResizeBrickBuffer(uint64_t brick_buffer_bytes) {
   for (uint32_t slot = 0; slot < slot_count_; ++slot) m.ReleaseSlot(slot, false);
   m.stale.clear();
   m.bricks.clear();
+  m.mapped.clear();
   m.slot_used_buffer.reset();
   m.slot_node.clear();
   m.slot_key.clear();
@@ -686,10 +782,35 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
     const auto resident = m.slot_of.find(item.id);
     if (item.stale && resident == m.slot_of.end()) continue;
     if (!item.stale && resident != m.slot_of.end()) continue;
-    // Read first: a node that lost its brick meanwhile must not cost an eviction.
+    // The slot first (nothing changes yet): the resident one, a free one, else the next victim.
+    uint32_t slot;
+    bool evict = false;
+    if (item.stale) {
+      slot = resident->second;
+    } else if (!m.free_slots.empty()) {
+      slot = m.free_slots.back();
+    } else {
+      while (next_victim < victims.size() && (filled_now[victims[next_victim]] != 0 ||
+                                              m.slot_node[victims[next_victim]] == kNoNode)) {
+        ++next_victim;
+      }
+      if (next_victim == victims.size()) {
+        // Every slot is protected or was filled by this call: the rest waits.
+        s.deferred += order.size() - i;
+        break;
+      }
+      slot = victims[next_victim];
+      evict = true;
+    }
+    Result<std::span<std::byte>> destination = m.Destination(slot);
+    if (!destination.ok()) {
+      status = destination.status();
+      break;
+    }
+    // Read straight into the destination; a failed read writes nothing, so a node that lost
+    // its brick meanwhile costs no eviction.
     uint64_t page = 0;
-    const Status read = m.resident_only ? octree_->TryReadBrick(item.id, m.raw, &page)
-                                        : octree_->ReadBrick(item.id, m.raw);
+    const Status read = m.ReadInto(item.id, *destination, &page);
     if (read.code() == StatusCode::kUnavailable) {
       // Its page is not in RAM: the next frame asks again; the caller prefetches the page.
       ++s.unavailable;
@@ -705,27 +826,14 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       status = read;
       break;
     }
-    uint32_t slot;
-    if (item.stale) {
-      slot = resident->second;
-    } else if (!m.free_slots.empty()) {
-      slot = m.free_slots.back();
-      m.free_slots.pop_back();
-    } else {
-      while (next_victim < victims.size() && (filled_now[victims[next_victim]] != 0 ||
-                                              m.slot_node[victims[next_victim]] == kNoNode)) {
-        ++next_victim;
-      }
-      if (next_victim == victims.size()) {
-        // Every slot is protected or was filled by this call: the rest waits.
-        s.deferred += order.size() - i;
-        break;
-      }
-      slot = victims[next_victim++];
+    if (evict) {
+      ++next_victim;
       m.ReleaseSlot(slot, false);
       ++s.evicted;
+    } else if (!item.stale) {
+      m.free_slots.pop_back();
     }
-    if (Status write = m.WriteBrick(slot); !write.ok()) {
+    if (Status write = m.Commit(slot); !write.ok()) {
       if (!item.stale) m.free_slots.push_back(slot);
       status = write;
       break;
@@ -750,6 +858,8 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       ++s.reserved;
     }
   }
+  // The bytes are on the device (unmapped / written) before the entries say so.
+  if (Status finished = m.FinishTransfers(); status.ok()) status = std::move(finished);
   // The residency bits reach the device even when an upload failed midway.
   const Status flushed = m.Flush(nullptr);
   total_uploaded_ += s.uploaded;
@@ -814,5 +924,9 @@ uint64_t DeviceOctree::node_capacity() const { return impl_->capacity_nodes(); }
 uint32_t DeviceOctree::frame() const { return impl_->frame; }
 uint64_t DeviceOctree::device_brick_bytes() const { return impl_->device_brick_bytes; }
 std::span<const uint32_t> DeviceOctree::slot_stamps() const { return impl_->slot_used; }
+
+UploadPath DeviceOctree::upload_path() const {
+  return impl_->mapped_path ? UploadPath::kMapped : UploadPath::kStaged;
+}
 
 }  // namespace octoscope::render

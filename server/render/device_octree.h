@@ -53,6 +53,18 @@
 // them) or ReleaseReservations(owner) frees them. So a paused refinement ray's next brick
 // survives the passes of other views until its own next pass: each of its passes advances.
 //
+// Transfer (DeviceOctreeOptions::upload_path; docs/octree_format.md "Brick transfer"): a brick is
+// copied ONCE by the host, straight from its resident page, and no command blocks per brick.
+//  * kMapped (default on CPU devices, whose device memory is host memory): the brick allocations
+//    are created with CL_MEM_ALLOC_HOST_PTR; an Upload maps each allocation it writes once
+//    (CL_MAP_WRITE, zero-copy there), reads the bricks into their slots and unmaps once at the end.
+//  * kStaged (default on GPUs): a pinned staging buffer (CL_MEM_ALLOC_HOST_PTR, mapped for the
+//    mirror's life, never itself an argument of a command) receives the bricks; each is sent with
+//    a NON-blocking clEnqueueWriteBuffer into its slot (DMA from pinned memory on a GPU) and the
+//    host waits once when the staging ring wraps and once at the end of the Upload.
+// Brick reads never write their output on failure, so a brick read straight into the slot of its
+// eviction victim leaves the victim intact when the read fails.
+//
 // Brick reads (DeviceOctreeOptions::brick_reads): kBlocking reads with Octree::ReadBrick (may wait
 // for the disk: command-line renders); kResidentOnly with Octree::TryReadBrick, which never waits:
 // a brick whose page is not in RAM is skipped (UploadStats::unavailable; it stays requested by the
@@ -85,6 +97,13 @@ namespace octoscope::render {
 
 inline constexpr int kMaxBrickAllocations = 4;
 
+// How Upload moves brick bytes to the device (see the file comment, "Transfer").
+enum class UploadPath {
+  kAuto,    // kMapped on CPU devices, kStaged elsewhere.
+  kMapped,  // Map the brick allocations and copy into the slots.
+  kStaged,  // Pinned staging buffer + non-blocking writes.
+};
+
 // How Upload reads bricks from the octree (see the file comment).
 enum class BrickReads {
   kBlocking,      // Octree::ReadBrick: may wait for a page load.
@@ -104,6 +123,9 @@ struct DeviceOctreeOptions {
   // them and the next Sync walks the whole tree again instead (ChangeLog, "Bound"). Must be > 0.
   size_t change_backlog = octree::kDefaultChangeBacklog;
   BrickReads brick_reads = BrickReads::kBlocking;
+  UploadPath upload_path = UploadPath::kAuto;
+  // kStaged: bytes of the staging ring (rounded down to whole bricks, at least 2).
+  uint64_t staging_bytes = uint64_t{32} << 20;
 };
 inline constexpr uint32_t kMinBrickSlots = 8;
 
@@ -215,6 +237,8 @@ class DeviceOctree {
   uint32_t frame() const;
   // Bytes of one slot on the device: brick_samples() * 2 (uint16 samples whatever the tree's).
   uint64_t device_brick_bytes() const;
+  // The transfer Upload uses (never kAuto).
+  UploadPath upload_path() const;
   // Host copy of the slot stamps (slot_used) as of the last ReadFeedback / Upload.
   std::span<const uint32_t> slot_stamps() const;
 

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <set>
@@ -170,6 +172,44 @@ TEST(BenchCommandTest, BadArgumentsAreUsageErrors) {
   EXPECT_EQ(RunOctoscope("bench render --no-such-flag").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --help").exit_code, 0);
   EXPECT_EQ(RunOctoscope("bench render /no/such/file.tif").exit_code, 2);
+}
+
+// `bench upload` on a small cache: every transfer row with a positive MB/s; bad input is
+// status 2 (not a cache), bad flags 64.
+TEST(BenchCommandTest, UploadBenchReportsEveryTransferOnASmallCache) {
+  const fs::path dir = testing::MakeTempDir("bench-upload");
+  ASSERT_EQ(RunOctoscope("demo --out " + dir.string() +
+                         " --size 64,64,48 --channels 1 --compression none --name small")
+                .exit_code,
+            0);
+  const fs::path cache = dir / "cache";
+  ASSERT_EQ(RunOctoscope("build " + (dir / "small.ome.tif").string() + " --cache " +
+                         cache.string() + " --brick 16")
+                .exit_code,
+            0);
+  const RunResult r = RunOctoscope("bench upload " + cache.string() + " --mb 16 --rounds 3");
+  if (r.exit_code == 2 && r.err.find("OpenCL") != std::string::npos) {
+    GTEST_SKIP() << "no OpenCL device: " << r.err;
+  }
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* row : {"| memcpy, warm destination (baseline) | ",
+                          "| one blocking clEnqueueWriteBuffer of one buffer | ",
+                          "| previous path: ReadBrick + blocking write per brick | ",
+                          "| DeviceOctree::Upload (mapped), slots written before | ",
+                          "| DeviceOctree::Upload, first fill of fresh slots | "}) {
+    const size_t at = r.out.find(row);
+    ASSERT_NE(at, std::string::npos) << row << " missing in\n" << r.out;
+    EXPECT_GT(std::atof(r.out.c_str() + at + std::strlen(row)), 0) << row;
+  }
+  EXPECT_EQ(RunOctoscope("bench upload " + cache.string() + " --path staged --mb 16 --rounds 2")
+                .exit_code,
+            0);
+  EXPECT_EQ(RunOctoscope("bench upload " + dir.string()).exit_code, 2);  // Not a cache.
+  // Flags: 64.
+  EXPECT_EQ(RunOctoscope("bench upload " + cache.string() + " --path nonsense").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench upload " + cache.string() + " --mb 1").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench upload").exit_code, 64);
+  fs::remove_all(dir);
 }
 
 }  // namespace

@@ -189,6 +189,22 @@ TEST_F(RenderCommandTest, MipContractTwoChannelsAddClamped) {
   ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *two_channel_, {0, 1});
 }
 
+// --cpu-reference (the benchmarks' oracle) keeps the same contract; a cache directory is refused.
+TEST_F(RenderCommandTest, CpuReferenceMeetsTheMipContractAndNeedsTheScan) {
+  const fs::path out = *dir_ / "reference.png";
+  RunResult r = Render(*dir_ / "two.ome.tif", out,
+                       std::string(kContractFlags) + " --size 80x40 --cpu-reference");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ExpectMipContract(DecodeTestPng(testing::ReadAll(out)), *two_channel_, {0, 1});
+  const fs::path cache = *dir_ / "reference-cache";
+  ASSERT_EQ(
+      RunOctoscope("build " + Quote(*dir_ / "two.ome.tif") + " --cache " + Quote(cache)).exit_code,
+      0);
+  r = Render(cache, *dir_ / "no.png", std::string(kContractFlags) + " --cpu-reference");
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("needs the scan"), std::string::npos) << r.err;
+}
+
 TEST_F(RenderCommandTest, MipContractSingleBrickVolume) {
   // The whole octree is one level-0 root with a brick: it must be requested and sampled too.
   const fs::path out = *dir_ / "single.png";

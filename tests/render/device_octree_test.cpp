@@ -16,6 +16,8 @@
 #include <limits>
 #include <map>
 #include <set>
+#include <span>
+#include <string>
 #include <thread>
 #include <tuple>
 #include <vector>
@@ -522,6 +524,108 @@ TEST(DeviceOctreeTest, TwoMirrorsOfOneTreeEachGetEveryChange) {
   for (DeviceOctree* dev : {often.get(), rarely.get(), late.get()}) {
     ASSERT_TRUE(dev->Sync().ok());
     EXPECT_EQ(FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity()), 1), -1);
+  }
+}
+
+// Both transfer paths (mapped slots; pinned staging ring + non-blocking writes), both stored
+// types: a split buffer of 10 slots, a staging ring of 3 bricks (it wraps), uploads of 7 bricks
+// at a time that evict: after every Upload each resident slot holds exactly ReadBrick's bytes.
+class DeviceOctreeUploadPathTest
+    : public ::testing::TestWithParam<std::tuple<UploadPath, volume::DataType>> {};
+
+INSTANTIATE_TEST_SUITE_P(
+    Paths, DeviceOctreeUploadPathTest,
+    ::testing::Combine(::testing::Values(UploadPath::kMapped, UploadPath::kStaged),
+                       ::testing::Values(volume::DataType::kUint16, volume::DataType::kUint8)),
+    [](const auto& info) {
+      return std::string(std::get<0>(info.param) == UploadPath::kMapped ? "Mapped" : "Staged") +
+             (std::get<1>(info.param) == volume::DataType::kUint8 ? "Uint8" : "Uint16");
+    });
+
+TEST_P(DeviceOctreeUploadPathTest, EveryResidentSlotHoldsItsBrick) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const auto [path, type] = GetParam();
+  auto scene = Scene(NoiseSpec(type, 2));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  const uint64_t brick = tree.geometry().brick_samples() * 2;
+  DeviceOctreeOptions options;
+  options.upload_path = path;
+  options.staging_bytes = 3 * brick;
+  options.max_allocation_bytes = 3 * brick + brick / 2;
+  options.brick_buffer_bytes = 10 * brick;
+  auto dev = MakeDevice(scene->tree.get(), options);
+  ASSERT_NE(dev, nullptr);
+  EXPECT_EQ(dev->upload_path(), path);
+  ASSERT_EQ(dev->allocation_count(), 4);
+  const std::vector<uint32_t> leaves = Ids(Bricked(tree, 0));
+  ASSERT_GT(leaves.size(), 30u);
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.max_bricks = 7;
+  budget.protect_frame = 1;  // No frame ran: every slot's stamp is 0, so all are evictable.
+  uint64_t evicted = 0;
+  for (size_t first = 0; first < leaves.size(); first += 5) {
+    const std::span<const uint32_t> some =
+        std::span(leaves).subspan(first, std::min<size_t>(5, leaves.size() - first));
+    UploadStats stats;
+    ASSERT_TRUE(dev->Upload(some, budget, &stats).ok());
+    EXPECT_GT(stats.uploaded, 0u);
+    evicted += stats.evicted;
+    for (const NodeSnapshot& node : Bricked(tree)) {
+      const std::optional<uint32_t> slot = dev->SlotOf(node.id);
+      if (!slot.has_value()) continue;
+      ASSERT_EQ(DeviceBrick(*dev, *slot), HostBrick(tree, node.id))
+          << "node " << node.id << " slot " << *slot << " after leaves from " << first;
+    }
+  }
+  EXPECT_GT(evicted, 0u);
+  EXPECT_EQ(dev->resident_bricks(), 10u);
+}
+
+// A full buffer and bricks whose pages are not in RAM: the reads fail before the victims'
+// slots (the reads' destinations on the mapped path) are touched, nothing is evicted and every
+// resident slot still holds its own brick.
+TEST_P(DeviceOctreeUploadPathTest, FailedReadsEvictNothingAndLeaveVictimsIntact) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const auto [path, type] = GetParam();
+  SceneSpec spec = NoiseSpec(type, 1);
+  spec.page_bytes = 4 * 10 * 10 * 10 * (type == volume::DataType::kUint8 ? 1 : 2);
+  auto scene = Scene(spec);
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  DeviceOctreeOptions options;
+  options.upload_path = path;
+  options.brick_reads = BrickReads::kResidentOnly;
+  options.brick_buffer_bytes = 8 * tree.geometry().brick_samples() * 2;
+  auto dev = MakeDevice(&tree, options);
+  ASSERT_NE(dev, nullptr);
+  ASSERT_EQ(dev->slot_count(), 8u);
+  const int root = tree.geometry().root_level();
+  const std::vector<uint32_t> coarse = Ids(Bricked(tree, root - 1));
+  UploadBudget budget;
+  budget.max_ms = kNoTimeLimit;
+  budget.protect_frame = 1;  // Every stamp is 0: all slots are evictable.
+  UploadStats stats;
+  ASSERT_TRUE(dev->Upload(coarse, budget, &stats).ok());
+  ASSERT_EQ(dev->resident_bricks(), 8u);
+  std::map<uint32_t, std::vector<uint16_t>> before;
+  for (const NodeSnapshot& n : Bricked(tree)) {
+    if (const auto slot = dev->SlotOf(n.id)) before[n.id] = HostBrick(tree, n.id);
+  }
+  // Every page dropped from RAM, then leaves requested.
+  ASSERT_TRUE(tree.Flush().ok());
+  ASSERT_TRUE(scene->cache->SetBudget(0).ok());
+  ASSERT_TRUE(scene->cache->SetBudget(uint64_t{1} << 30).ok());
+  ASSERT_TRUE(dev->Upload(Ids(Bricked(tree, 0)), budget, &stats).ok());
+  EXPECT_EQ(stats.uploaded, 0u);
+  EXPECT_EQ(stats.evicted, 0u);
+  EXPECT_GT(stats.unavailable, 0u);
+  EXPECT_EQ(dev->resident_bricks(), 8u);
+  for (const auto& [id, bytes] : before) {
+    const std::optional<uint32_t> slot = dev->SlotOf(id);
+    ASSERT_TRUE(slot.has_value()) << id;
+    EXPECT_EQ(DeviceBrick(*dev, *slot), bytes) << "node " << id;
   }
 }
 

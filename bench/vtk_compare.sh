@@ -1,0 +1,105 @@
+#!/usr/bin/env bash
+# Benchmark: Octoscope against VTK 9's volume ray casters on the same volume, size and views
+# (issue 12, item 6; docs/benchmarks.md "Side by side with VTK").
+#   VTK: vtkFixedPointVolumeRayCastMapper (CPU, all cores) and vtkGPUVolumeRayCastMapper (OpenGL;
+#        Mesa llvmpipe under Xvfb on a machine without GPU), Debian's python3-vtk9.
+#   Octoscope: `octoscope render CACHE --refine` (refined, the final image) and the first image
+#        after opening the cache (full frames at lod bias 3 and 2: the coarse levels first).
+#   Error: every image against Octoscope's double-precision CPU reference of the same view
+#        (`octoscope render SCAN --cpu-reference`), as PSNR and max difference of 8-bit RGB
+#        composited over black.
+# Requires bench/install_vtk.sh (python3-vtk9, xvfb); not needed by the test suite.
+#
+# Usage: bash bench/vtk_compare.sh [DEMO_SIZE=512] [IMAGE_SIZE=1024] [FRAMES=3]
+# Leaves everything in $OCTOSCOPE_BENCH_DIR (default out/bench-vtk): the inputs, every image,
+# results.jsonl (one JSON line per measurement) and vtk_compare.md (the table, also printed).
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
+bin="$build/octoscope"
+demo="${1:-512}"
+size="${2:-1024}"
+frames="${3:-3}"
+out="${OCTOSCOPE_BENCH_DIR:-$root/out/bench-vtk}"
+py=/usr/bin/python3  # Debian's, where python3-vtk9 lives.
+mkdir -p "$out"
+[ -x "$bin" ] || bash "$root/deploy/build.sh" >/dev/null
+if ! "$py" -c 'import vtk' 2>/dev/null || ! command -v xvfb-run >/dev/null; then
+  echo "vtk_compare: needs python3-vtk9 and xvfb: sudo bash bench/install_vtk.sh" >&2
+  exit 2
+fi
+export PYTHONPATH="$root/bench${PYTHONPATH:+:$PYTHONPATH}"
+export PYTHONDONTWRITEBYTECODE=1  # No __pycache__ in the checkout.
+ms() { date +%s%N | awk '{printf "%.1f", $1 / 1e6}'; }
+
+# 1. Inputs (not timed): the demo scan (one uint16 channel, uncompressed), its Octoscope cache,
+#    the raw voxels VTK reads, the camera and the parameters.
+scan="$out/demo${demo}.ome.tif"
+[ -f "$scan" ] || "$bin" demo --out "$out" --size "$demo,$demo,$demo" --channels 1 \
+  --compression none --name "demo${demo}" >/dev/null
+[ -f "$out/cache/MANIFEST" ] || "$bin" build "$scan" --cache "$out/cache" >/dev/null 2>&1
+[ -f "$out/volume.raw" ] || "$py" "$root/bench/vtk_prepare.py" --tiff "$scan" --out-dir "$out" \
+  > "$out/inputs.json"
+read -r lo hi < <("$py" -c "import json; w = json.load(open('$out/inputs.json'))['window']; print(*w)")
+
+{
+  echo "date: $(date -Iseconds)"
+  echo "cpu: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores"
+  echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
+  echo "volume: ${demo}^3 uint16, image ${size}x${size}, window $lo..$hi"
+} > "$out/machine.txt"
+: > "$out/results.jsonl"
+compare() { "$py" "$root/bench/vtk_prepare.py" --compare "$1" "$2"; }
+
+for mode in mip dvr; do
+  # The voxel grid at 1 µm (the demo file says 0.4 x 0.4 x 2 µm): VTK gets the same unit grid, so
+  # steps (voxels here, world units there) and opacity reference lengths agree.
+  common=(--view "$out/camera.json" --params "$out/params_$mode.json" --size "${size}x${size}"
+    --spacing 1,1,1)
+  # 2. The reference (not timed; one thread, double precision).
+  ref="$out/ref_$mode.png"
+  [ -f "$ref" ] || "$bin" render "$scan" --cache "$out/cache" --cpu-reference "${common[@]}" \
+    --out "$ref"
+  # 3. Octoscope: first images after opening the cache (whole process, wall), then refined. A
+  #    throwaway render first builds the kernels (PoCL keeps them in its disk cache, so this is
+  #    once per machine and build, not per file).
+  "$bin" render "$out/cache" "${common[@]}" --size 64x64 --max-passes 1 --out "$out/warm.png"
+  "$bin" render "$out/cache" "${common[@]}" --size 64x64 --refine --max-passes 1 --out "$out/warm.png"
+  # First images at the coarse levels (the root level is 3 for 512^3 in 64^3 bricks): frame 1
+  # shows node averages and requests the bricks, frame 2 (3) shows the uploaded coarse bricks.
+  for first in "3 2" "2 3"; do
+    read -r bias passes <<< "$first"
+    img="$out/octoscope_first_bias${bias}_$mode.png"
+    t0=$(ms)
+    /usr/bin/time -f "%U %S" -o "$out/cpu.txt" "$bin" render "$out/cache" "${common[@]}" \
+      --lod-bias "$bias" --max-passes "$passes" --out "$img"
+    t1=$(ms)
+    read -r user sys < "$out/cpu.txt"
+    err=$(compare "$img" "$ref")
+    echo "{\"renderer\":\"octoscope\",\"what\":\"first image, lod bias $bias, $passes full frames\",\"mode\":\"$mode\",\"ms_first_image\":$(awk "BEGIN{print $t1 - $t0}"),\"cpu_s_process\":$(awk "BEGIN{print $user + $sys}"),\"error\":$err}" >> "$out/results.jsonl"
+  done
+  for ((f = 0; f < frames; ++f)); do
+    img="$out/octoscope_refined_$mode.png"
+    cpu="$out/cpu.txt"
+    stats=$(/usr/bin/time -f "%U %S" -o "$cpu" "$bin" render "$out/cache" "${common[@]}" --refine \
+      --stats-json --out "$img")
+    read -r user sys < "$cpu"
+    err=$(compare "$img" "$ref")
+    echo "{\"renderer\":\"octoscope\",\"what\":\"refined\",\"mode\":\"$mode\",\"cpu_s_process\":$(awk "BEGIN{print $user + $sys}"),\"stats\":$stats,\"error\":$err}" >> "$out/results.jsonl"
+  done
+  # 4. VTK.
+  for mapper in fixed gpu; do
+    opacity=$("$py" -c "import json; print(json.load(open('$out/params_$mode.json'))['channels'][0]['opacity_scale'])")
+    line=$(xvfb-run -a -s "-screen 0 $((size + 64))x$((size + 64))x24" "$py" \
+      "$root/bench/vtk_compare.py" --raw "$out/volume.raw" --dims "$demo" "$demo" "$demo" \
+      --camera "$out/camera.json" --mode "$mode" --window "$lo" "$hi" --opacity "$opacity" \
+      --size "$size" --mapper "$mapper" --frames "$frames" --reference "$ref" \
+      --out "$out/vtk_${mapper}_$mode.png" | tail -1)
+    echo "{\"renderer\":\"vtk\",\"result\":$line}" >> "$out/results.jsonl"
+  done
+done
+echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)" >> "$out/machine.txt"
+"$py" "$root/bench/vtk_report.py" "$out/results.jsonl" > "$out/vtk_compare.md"
+cat "$out/machine.txt"
+echo
+cat "$out/vtk_compare.md"
