@@ -12,6 +12,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <cstdlib>
 #include <fstream>
 #include <optional>
 #include <string>
@@ -61,7 +62,7 @@ class ServerProcess {
       if (n <= 0) return Fail("exited before printing the URL (see " + log_path + ")");
       if (c == '\n') {
         url_ = line;
-        return ParseUrl();
+        return ParseUrl(log_path);
       }
       line += c;
     }
@@ -128,12 +129,20 @@ class ServerProcess {
     error_ = std::move(what);
     return false;
   }
-  // http://127.0.0.1:PORT/?token=T[&dataset=ID]
-  bool ParseUrl() {
-    const size_t colon = url_.rfind(':', url_.find("/?"));
-    const size_t slash = url_.find("/?");
-    if (colon == std::string::npos || slash == std::string::npos) return Fail("URL: " + url_);
-    port_ = static_cast<uint16_t>(std::stoi(url_.substr(colon + 1, slash - colon - 1)));
+  // BASE/?token=T[&dataset=ID]; the port from the log's "listening on ADDR port N" line (the
+  // printed URL is the public URL when one is given).
+  bool ParseUrl(const std::string& log_path) {
+    std::ifstream log(log_path);
+    const std::string marker = " port ";
+    for (std::string l; std::getline(log, l);) {
+      const size_t at = l.find("listening on ");
+      const size_t p = at == std::string::npos ? at : l.find(marker, at);
+      if (p != std::string::npos) {
+        port_ = static_cast<uint16_t>(std::strtoul(l.c_str() + p + marker.size(), nullptr, 10));
+        break;
+      }
+    }
+    if (port_ == 0) return Fail("no \"listening on\" line in " + log_path);
     auto param = [&](const std::string& name) {
       const size_t at = url_.find(name + "=");
       if (at == std::string::npos) return std::string();
