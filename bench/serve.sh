@@ -6,13 +6,19 @@
 # The server is the real binary on loopback; the clients are bench/serve_bench.cpp (Beast
 # WebSocket), one thread each, each acknowledging every frame as a browser does.
 #
-# Usage: bash bench/serve.sh [SIZE] [SECONDS] [VIEWPORT]   (default 512 10 512x512)
+# Then fairness (issue 11): 8 clients on the two datasets — 6 dragging as above, and 2 heavy ones
+# that are idle for SECONDS and then, for SECONDS more, take 4K screenshots back to back / keep
+# refining at 1920x1080 — each interactive client's cameras/s and latency idle vs loaded.
+#
+# Usage: bash bench/serve.sh [SIZE] [SECONDS] [VIEWPORT] [WHAT]   (default 512 10 512x512 all)
 #   SIZE: the demo specimens are SIZE^3 x 3 channels uint16 (two of them, different seeds).
+#   WHAT: all, clients (the 1/4/8-client table only) or fairness (the fairness table only).
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/common.sh"
 size="${1:-512}"
 seconds="${2:-10}"
 viewport="${3:-512x512}"
+what="${4:-all}"
 [ -x "$build/bench/serve_bench" ] || cmake --build "$build" --target serve_bench >/dev/null
 data="$work/serve-data-$size"
 cache="$work/serve-cache"
@@ -36,6 +42,7 @@ ids=$(curl -s -H "Authorization: Bearer $token" "http://127.0.0.1:$port/api/data
   python3 -c 'import json,sys; print(",".join(d["id"] for d in sorted(json.load(sys.stdin), key=lambda d: d["name"])))')
 first=${ids%%,*}
 echo "load average before: $(loadavg)"
+if [ "$what" != fairness ]; then
 echo "| clients | datasets | viewport | cameras/s per client (min) | (median) | latency p50 ms | p95 ms | KB/frame | dropped % | PSNR interactive vs final (dB) |"
 echo "|---|---|---|---|---|---|---|---|---|---|"
 for clients in 1 4 8; do
@@ -46,4 +53,11 @@ for clients in 1 4 8; do
       --clients "$clients" --seconds "$seconds" --viewport "$viewport"
   fi
 done
+fi
+if [ "$what" != clients ]; then
+  echo
+  echo "Fairness: 6 interactive clients ($viewport) + 2 heavy clients on 2 datasets, ${seconds} s idle, ${seconds} s loaded"
+  "$build/bench/serve_bench" --port "$port" --token "$token" --datasets "$ids" \
+    --clients 6 --seconds "$seconds" --viewport "$viewport" --heavy 1
+fi
 echo "load average after: $(loadavg)"

@@ -27,16 +27,8 @@ cmake --build "$build" --target "$harness" -j "$(nproc)"
 
 corpus="$root/fuzz/corpus-run/$harness"
 mkdir -p "$corpus" "$root/fuzz/crashes"
-case "$harness" in
-  tiff_ome_fuzzer) seeds=("$root/fuzz/seeds" "$root/fuzz/regressions") ;;
-  dataset_json_fuzzer) seeds=("$root/fuzz/seeds-json") ;;
-  ws_message_fuzzer) seeds=("$root/fuzz/ws/seeds" "$root/fuzz/ws/regressions") ;;
-  *)
-    name="${harness%_fuzzer}"
-    mkdir -p "$root/fuzz/zarr/regressions/$name"
-    seeds=("$root/fuzz/zarr/seeds/$name" "$root/fuzz/zarr/regressions/$name")
-    ;;
-esac
+source "$root/fuzz/seed_dirs.sh"
+mapfile -t seeds < <(seed_dirs "$harness")
 testdata="$root/../shared/testdata"
 if [ "$harness" = tiff_ome_fuzzer ] && [ -d "$testdata" ]; then
   # Small real files make good seeds (big ones only slow each run down).

@@ -232,14 +232,16 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                       volatile __global uint* counters, __global uint* ray_next,
                       __global float4* ray_acc, __global float* ray_extreme,
                       __global const uint* tiles_in, __global uint* tiles_out,
-                      volatile __global uint* tile_stamp, uint tile_count, int all_tiles) {
+                      volatile __global uint* tile_stamp, uint tile_offset, uint tile_count,
+                      int all_tiles) {
 #if OCTO_REFINE
-  /* A 1-D range of OCTO_TILE^2 work items per listed tile (the tiles that still have unfinished
-   * rays; all tiles in the first pass): finished rays cost nothing, and a tile's rays are
-   * neighbours that share bricks. */
+  /* A 1-D range of OCTO_TILE^2 work items per tile of the slice [tile_offset, tile_offset +
+   * tile_count) of the tile list (the tiles that still have unfinished rays; all tiles in the
+   * first sweep): finished rays cost nothing, and a tile's rays are neighbours that share
+   * bricks. */
   const uint gid = (uint)get_global_id(0);
-  const uint entry_index = gid / (OCTO_TILE * OCTO_TILE);
-  if (entry_index >= tile_count) return;
+  if (gid / (OCTO_TILE * OCTO_TILE) >= tile_count) return;
+  const uint entry_index = tile_offset + gid / (OCTO_TILE * OCTO_TILE);
   const uint tile = all_tiles ? entry_index : tiles_in[entry_index];
   const uint tiles_x = (uint)(f.width + OCTO_TILE - 1) / OCTO_TILE;
   const uint within = gid % (OCTO_TILE * OCTO_TILE);
@@ -262,6 +264,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
   (void)tiles_in;
   (void)tiles_out;
   (void)tile_stamp;
+  (void)tile_offset;
   (void)tile_count;
   (void)all_tiles;
   const uint first = 0u;
@@ -525,7 +528,10 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
   OctoAddCount64(counters, OCTO_COUNTER_SKIPPED_LO, skipped);
 #if OCTO_REFINE
   if (paused) {
-    /* The tile goes on the next pass's list once (the first ray of the pass to pause adds it). */
+    /* The tile goes on the next sweep's list once per pass (the first ray of the pass to pause
+     * adds it; stamps are octree frames, new every pass). The host appends a sweep's slices one
+     * after another (the counter starts where the last slice ended) and re-runs a slice from
+     * the same counter, so each tile is listed once. */
     if (atomic_xchg(&tile_stamp[tile], frame) != frame) {
       tiles_out[atomic_inc(&counters[OCTO_COUNTER_NEXT_TILES])] = tile;
     }

@@ -595,6 +595,7 @@ bool RenderService::Worker::PickLocked(Step* step) {
     job->options = job->request.options.value_or(options.default_frame);
     job->options.view = id;
     job->options.upload.reserve_for = 0;
+    if (job->options.pass_target_ms == 0) job->options.pass_target_ms = options.refine_pass_ms;
     return job;
   };
   // Admission of each pending request: refused (too large, or waited too long), waiting for frame
@@ -1066,11 +1067,12 @@ Result<std::unique_ptr<RenderService>> RenderService::Start(
     std::unique_ptr<RenderService> service) {
   const RenderServiceOptions& o = service->options_;
   if (!(o.refine_share > 0 && o.refine_share < 1) || !(o.quantum_ms > 0) ||
+      !(o.refine_pass_ms >= 0) || !std::isfinite(o.refine_pass_ms) ||
       !std::isfinite(o.quantum_ms) || o.max_request_bytes == 0 || o.io_retry.count() <= 0 ||
       o.admission_timeout.count() < 0 || o.mirror_idle_timeout.count() < 0) {
     return InvalidArgumentError(
         "RenderService: refine_share must lie in (0, 1), quantum_ms, max_request_bytes and "
-        "io_retry must be > 0, the timeouts >= 0");
+        "io_retry must be > 0, the timeouts and refine_pass_ms >= 0 (finite)");
   }
   if (o.max_request_bytes > service->frame_memory_bytes_) {
     return InvalidArgumentError(

@@ -156,6 +156,11 @@ struct RenderServiceOptions {
   // frames wait too, in (0, 1); and the deficit round robin quantum.
   double refine_share = 0.25;
   double quantum_ms = 10;
+  // Volume refinements whose request sets no FrameOptions::pass_target_ms get this one: a pass
+  // runs a slice of the unfinished tiles taking about this long, so a full frame waits at most
+  // about this long for a refinement pass in flight, however large the refinement (a 4K
+  // screenshot). 0 = every pass runs all unfinished tiles.
+  double refine_pass_ms = 50;
   // A dataset's mirror is dropped this long after its last view closed.
   std::chrono::milliseconds mirror_idle_timeout{30'000};
   // Non-blocking brick reads: I/O threads of the service's prefetcher, and how long a refinement

@@ -151,8 +151,11 @@ struct VolumeRenderer::Impl {
   std::string build_options;
   // One kernel per (mode define, refine), created on first use.
   std::map<std::string, ClKernel> kernels;  // By build options (mode, frame kind, variant).
-  ClMem counters;                           // OCTO_COUNTER_WORDS uints, cleared before every pass.
+  ClMem counters;                           // OCTO_COUNTER_WORDS uints, set before every pass.
   ClMem dummy;                              // Stands in for the ray-state buffers of full frames.
+  // Kernel ms per listed tile of the last refinement passes (0 = none yet): sizes the slices of
+  // the tile list that refinements with a pass target run per pass.
+  double refine_ms_per_tile = 0;
   std::unique_ptr<FrameBuffers> own_buffers;  // Full frames of callers that pass none.
 
   // The program of (mode, frame kind) specialised for `variant` (VariantDefines), built on
@@ -170,25 +173,32 @@ struct VolumeRenderer::Impl {
     return it->second.get();
   }
 
-  // Sets every argument and runs one pass over the width x height pixels; reads the counters back
-  // (finished rays, samples). Adds the kernel time to stats.
-  // Which rays a pass runs: full frames every pixel (2-D tiles); refinement passes the listed
-  // tiles (all of them in the first pass), appending to `tiles_out` those still unfinished.
+  // Which rays a pass runs: full frames every pixel (2-D tiles); refinement passes the entries
+  // [offset, offset + count) of the tile list `tiles_in` (of the list of all tiles when `all`),
+  // appending to `tiles_out` from index `out_start` on those still unfinished.
   struct PassTiles {
     bool refine = false;
     cl_mem tiles_in = nullptr;
     cl_mem tiles_out = nullptr;
     cl_mem stamps = nullptr;
+    uint32_t offset = 0;
     uint32_t count = 0;
     bool all = false;
+    uint32_t out_start = 0;
   };
+
+  // Sets every argument and runs one pass over the width x height pixels (full frames) or the
+  // listed tiles (refinement); reads the counters back (finished rays, samples, the end of the
+  // tiles_out list). Adds the kernel time to stats.
 
   Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
                  cl_mem image, cl_mem ray_next, cl_mem ray_acc, cl_mem ray_extreme, int width,
                  int height, const PassTiles& tiles, uint32_t* finished, uint64_t* samples,
                  uint32_t* next_tiles, FrameStats* stats) {
-    const uint32_t zeros[OCTO_COUNTER_WORDS] = {};
-    OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
+    // Zero, but the tile list appends where the sweep's earlier passes left off.
+    uint32_t initial[OCTO_COUNTER_WORDS] = {};
+    initial[OCTO_COUNTER_NEXT_TILES] = tiles.out_start;
+    OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(initial), initial));
     const auto bricks = octree.brick_buffers();
     OCTO_RETURN_IF_ERROR(SetKernelArgs(
         kernel, octree.node_buffer(), bricks[0], bricks[1], bricks[2], bricks[3],
@@ -196,7 +206,7 @@ struct VolumeRenderer::Impl {
         in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
         octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme,
         tiles.refine ? tiles.tiles_in : dummy.get(), tiles.refine ? tiles.tiles_out : dummy.get(),
-        tiles.refine ? tiles.stamps : dummy.get(), tiles.count, tiles.all ? 1 : 0));
+        tiles.refine ? tiles.stamps : dummy.get(), tiles.offset, tiles.count, tiles.all ? 1 : 0));
     const Clock::time_point start = Clock::now();
     if (tiles.refine) {
       OCTO_RETURN_IF_ERROR(EnqueueTiles(kernel, tiles.count));
@@ -236,7 +246,6 @@ struct VolumeRenderer::Impl {
                                           tiles ? local : nullptr, 0, nullptr, nullptr));
   }
 
-  // Reads the pass's requests and uploads them within `budget`; adds to stats.
   // A 1-D range of kTile^2 work items per tile; groups of one tile where the device allows.
   Status EnqueueTiles(cl_kernel kernel, uint32_t tiles) const {
     if (tiles == 0) return Status::Ok();
@@ -251,6 +260,7 @@ struct VolumeRenderer::Impl {
                                           nullptr));
   }
 
+  // Reads the pass's requests and uploads them within `budget`; adds to stats.
   Status Feedback(DeviceOctree& octree, UploadBudget budget, FrameStats* stats,
                   UploadStats* upload_out) {
     OCTO_ASSIGN_OR_RETURN(std::vector<uint32_t> requests, octree.ReadFeedback());
@@ -277,16 +287,29 @@ struct Refinement::State {
   cl_mem ray_next = nullptr;     // uint per pixel: next sample index or OCTO_RAY_DONE.
   cl_mem ray_acc = nullptr;      // float4 per pixel (DVR).
   cl_mem ray_extreme = nullptr;  // float per pixel and enabled channel (MIP/MinIP).
-  cl_mem tiles_in = nullptr;     // The tiles the next pass runs (unless all_tiles).
-  cl_mem tiles_out = nullptr;    // Where it lists those still unfinished.
-  cl_mem tile_stamps = nullptr;  // uint per tile: the pass that listed it last.
+  // A sweep runs the tile list tiles_in (every tile in the first sweep) in slices, one per pass
+  // (FrameOptions::pass_target_ms; the whole list without a target), each appending its
+  // unfinished tiles to tiles_out after the earlier slices' ones; then the lists swap. A slice
+  // whose pass uploaded bricks and left rays unfinished runs again (its rays use the bricks
+  // before another slice's uploads could evict them), appending from the same index: its
+  // entries are overwritten, never duplicated. Progress is judged per sweep (a slice whose rays
+  // all wait for bricks may stand still while others advance).
+  cl_mem tiles_in = nullptr;     // The tiles this sweep runs (unless all_tiles).
+  cl_mem tiles_out = nullptr;    // Where its passes list those still unfinished.
+  cl_mem tile_stamps = nullptr;  // uint per tile: the pass (octree frame) that listed it last.
   uint32_t tile_count = 0;       // Entries of tiles_in, or all tiles.
-  bool all_tiles = true;         // The first pass runs every tile.
+  bool all_tiles = true;         // The first sweep runs every tile.
+  uint32_t slice_start = 0;      // The next slice: entries [slice_start, + slice_tiles).
+  uint32_t slice_tiles = 0;      // 0 = not cut yet.
+  int slice_runs = 0;            // Passes the slice has run.
+  uint32_t out_count = 0;        // Entries of tiles_out so far this sweep.
   int width = 0;
   int height = 0;
   uint64_t finished = 0;
-  int stalled_passes = 0;          // Consecutive passes without progress.
+  int stalled_passes = 0;          // Consecutive sweeps without progress.
   int stalled_without_upload = 0;  // Of which consecutive ones that uploaded nothing either.
+  uint64_t sweep_finished = 0, sweep_samples = 0, sweep_uploaded = 0;
+  bool sweep_waiting = false, sweep_unavailable = false;
 };
 
 Refinement::~Refinement() = default;
@@ -528,6 +551,21 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   if (s.finished >= pixels) return 1.0;
   DeviceOctree& octree = *device_octree_;
   OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(s.mode, true, s.inputs.variant));
+  // This pass's slice of the tile list: as many tiles as the measured speed allows within the
+  // pass target (at least one row of tiles; one row while no speed is known), else the rest.
+  if (s.slice_tiles == 0) {
+    const uint32_t rest = s.tile_count - s.slice_start;
+    double tiles = static_cast<double>(rest);
+    if (s.options.pass_target_ms > 0) {
+      const uint32_t row = static_cast<uint32_t>(TileCount(s.width, kTile));
+      const double fit = impl_->refine_ms_per_tile > 0
+                             ? std::floor(s.options.pass_target_ms / impl_->refine_ms_per_tile)
+                             : 0.0;
+      tiles = std::clamp(fit, static_cast<double>(std::min(row, rest)), tiles);
+    }
+    s.slice_tiles = static_cast<uint32_t>(tiles);
+    s.slice_runs = 0;
+  }
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
   uint32_t finished = 0;
@@ -537,24 +575,29 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
                               .tiles_in = s.tiles_in,
                               .tiles_out = s.tiles_out,
                               .stamps = s.tile_stamps,
-                              .count = s.tile_count,
-                              .all = s.all_tiles};
+                              .offset = s.slice_start,
+                              .count = s.slice_tiles,
+                              .all = s.all_tiles,
+                              .out_start = s.out_count};
+  const double kernel_ms_before = stats.ms_kernel;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, s.inputs, frame, s.image, s.ray_next,
                                       s.ray_acc, s.ray_extreme, s.width, s.height, tiles, &finished,
                                       &samples, &next_tiles, &stats));
-  // The next pass runs only the tiles this one left unfinished.
-  std::swap(s.tiles_in, s.tiles_out);
-  s.tile_count = next_tiles;
-  s.all_tiles = false;
+  ++s.slice_runs;
+  // The speed of listed tiles, for the slices cut later (a moving average).
+  if (s.slice_tiles > 0 && samples > 0) {
+    const double ms_per_tile =
+        (stats.ms_kernel - kernel_ms_before) / static_cast<double>(s.slice_tiles);
+    impl_->refine_ms_per_tile = impl_->refine_ms_per_tile > 0
+                                    ? 0.5 * impl_->refine_ms_per_tile + 0.5 * ms_per_tile
+                                    : ms_per_tile;
+  }
   // Paused rays hold no brick between passes: protect nothing but what this upload brings in
   // (the upload manager never evicts a brick it uploaded in the same call).
   UploadBudget budget = s.options.upload;
   budget.protect_frame = frame + 1;
   UploadStats upload;
   OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &upload));
-  const uint64_t uploaded = upload.uploaded;
-  // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
-  const bool waiting = upload.unavailable > 0 || upload.deferred > 0;
   s.finished += finished;
   stats.passes += 1;
   stats.samples += samples;
@@ -563,23 +606,54 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   stats.pass_finished.push_back(fraction);
   stats.final = s.finished >= pixels;
   stats.ms_total += MsSince(start);
-  // Every unfinished ray waits for a brick: a pass that neither advanced a ray nor uploaded
+  // The sweep so far; it ends after its last slice.
+  s.sweep_finished += finished;
+  s.sweep_samples += samples;
+  s.sweep_uploaded += upload.uploaded;
+  // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
+  s.sweep_waiting = s.sweep_waiting || upload.unavailable > 0 || upload.deferred > 0;
+  s.sweep_unavailable = s.sweep_unavailable || upload.unavailable > 0;
+  if (stats.final) return fraction;
+  // A slice whose pass brought bricks in and left tiles unfinished runs again next, appending
+  // where it did (its rays use the bricks before another slice's uploads could evict them: with a
+  // small brick buffer, slices taking turns would thrash); only while it advances, after its
+  // first pass. A slice that is the whole list starts the next sweep instead: the same tiles,
+  // less those that finished.
+  const bool whole_list = s.slice_start == 0 && s.slice_tiles == s.tile_count;
+  if (upload.uploaded > 0 && next_tiles > s.out_count && !whole_list &&
+      (s.slice_runs == 1 || finished > 0 || samples > 0)) {
+    return fraction;
+  }
+  s.out_count = next_tiles;
+  s.slice_start += s.slice_tiles;
+  s.slice_tiles = 0;
+  if (s.slice_start < s.tile_count) return fraction;
+  // The end of the sweep: the next one runs the tiles left unfinished.
+  std::swap(s.tiles_in, s.tiles_out);
+  s.tile_count = s.out_count;
+  s.all_tiles = false;
+  s.slice_start = 0;
+  s.out_count = 0;
+  // Every unfinished ray waits for a brick: a sweep that neither advanced a ray nor uploaded
   // anything, with nothing left waiting, will never progress (nor will endlessly many that keep
-  // uploading in vain). Passes that wait for the disk do not count: the disk sets their pace.
-  if (finished == 0 && samples == 0 && !stats.final && upload.unavailable == 0) {
+  // uploading in vain). Sweeps that wait for the disk do not count: the disk sets their pace.
+  if (s.sweep_finished == 0 && s.sweep_samples == 0 && !s.sweep_unavailable) {
     ++s.stalled_passes;
-    s.stalled_without_upload = uploaded == 0 && !waiting ? s.stalled_without_upload + 1 : 0;
-    // One pass without an upload can happen while construction changes the tree between Sync
+    s.stalled_without_upload =
+        s.sweep_uploaded == 0 && !s.sweep_waiting ? s.stalled_without_upload + 1 : 0;
+    // One sweep without an upload can happen while construction changes the tree between Sync
     // and Upload (a wanted node lost its brick); the next Sync sees it. Three in a row cannot.
     if (s.stalled_without_upload >= 3 || s.stalled_passes > 1000) {
       return InternalError("refinement makes no progress: " + std::to_string(pixels - s.finished) +
                            " rays wait for bricks that cannot be made resident (" +
                            std::to_string(octree.slot_count()) + " brick slots)");
     }
-  } else if (finished != 0 || samples != 0) {
+  } else if (s.sweep_finished != 0 || s.sweep_samples != 0) {
     s.stalled_passes = 0;
     s.stalled_without_upload = 0;
   }
+  s.sweep_finished = s.sweep_samples = s.sweep_uploaded = 0;
+  s.sweep_waiting = s.sweep_unavailable = false;
   return fraction;
 }
 

@@ -27,9 +27,10 @@
 //    uploaded within the frame's budget after the image is read, for the next frame.
 //  * Refinement: the ray state (next sample index, accumulated colour / per-channel extremum)
 //    is kept on the device between passes; a ray pauses at the first sample whose wanted brick
-//    is missing (DVR and MIP alike) and resumes there in the next pass, after the upload. A pass
-//    runs only the 8x8 tiles that still have unfinished rays (a list the previous pass appended
-//    to on the device; the first pass runs all tiles).
+//    is missing (DVR and MIP alike) and resumes there in the next pass, after the upload. Passes
+//    run only the 8x8 tiles that still have unfinished rays: a sweep runs a tile list (the first
+//    one all tiles) in slices (FrameOptions::pass_target_ms; one slice without a target), each
+//    pass appending on the device the tiles it left unfinished to the next sweep's list.
 //    Each pass reports the fraction of finished rays. Because only the bricks of the ray fronts
 //    are needed in one pass, working sets larger than the brick buffer finish too (a pass that
 //    advances no ray with everything requested resident is an internal error, never a hang).
@@ -100,6 +101,13 @@ struct FrameOptions {
   // Which view this frame belongs to (e.g. the render service's view id): the adaptive biases
   // of full frames (brick-buffer pressure, frame-time target) are tracked per view.
   uint64_t view = 0;
+  // Refinement: a kernel-time target per pass in ms (0 = every pass runs every tile with
+  // unfinished rays). Passes then run slices of that tile list (as many tiles as the renderer's
+  // measured refinement speed allows, at least one row of tiles), slice after slice (a slice runs
+  // again while its passes upload bricks and leave rays unfinished): a refinement of a huge
+  // image (a 4K screenshot) advances in short passes, so the render service can run other views'
+  // frames between them. The image is the same.
+  double pass_target_ms = 0;
   // Full frames: a kernel-time target in ms (0 = none). While frames take longer, the view's
   // frames get coarser (an extra fractional lod bias, see the file comment); when they are
   // much faster, finer again, down to the caller's lod_bias.

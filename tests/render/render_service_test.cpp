@@ -561,6 +561,9 @@ TEST(RenderServiceTest, DisjointViewsShareATinyBrickBuffer) {
   // A tiny quantum: the views alternate pass by pass (with the default one, a view may finish
   // within its first quantum before the other even starts).
   options.quantum_ms = 1e-3;
+  // Whole-image passes: the claim below is about them (a band's first pass may sample nothing
+  // before its bricks came; bands are checked in VolumeRendererTest.RefinementInRowBands...).
+  options.refine_pass_ms = 0;
   Served service = MakeService(*scene, options);
   ASSERT_NE(service.service, nullptr);
   // One event log for both views (callbacks run on the render thread, in order).
