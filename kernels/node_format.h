@@ -9,7 +9,8 @@
  *   word 0: bit 31 in_buffer, bit 30 has_brick, bits 0..29 child group (0 = no children; the child
  *           in octant o = x | y << 1 | z << 2 is node 8 * group + o; the root is node 0);
  *   word 1: brick slot in the brick buffer (valid only with in_buffer);
- *   word 2 + k: uint16 averages of channels 2k (bits 0..15) and 2k + 1 (bits 16..31).
+ *   word 2 + k: uint16 averages of channels 2k (bits 0..15) and 2k + 1 (bits 16..31);
+ *   word 2 + ceil(C / 2) + c: channel c's subtree value range, min bits 0..15, max bits 16..31.
  * Brick buffer: uint16 samples; the brick in slot s starts at sample s * OctoBrickSamples(g) and
  * holds the node's interior plus a one-voxel apron, (bs + 2) voxels per axis, channels
  * interleaved, x fastest: ((z * sy + y) * sx + x) * C + c (brick_geometry.h).
@@ -22,8 +23,10 @@
 #define OCTO_NODE_CHILD_GROUP_MASK 0x3fffffffu
 #define OCTO_NODE_SLOT_WORD 1
 #define OCTO_NODE_AVERAGE_WORD 2
-/* Words per node for `channels` channels: 2 + ceil(channels / 2). */
-#define OCTO_NODE_WORDS(channels) (2 + ((channels) + 1) / 2)
+/* Words per node for `channels` channels: 2 + ceil(channels / 2) + channels. */
+#define OCTO_NODE_WORDS(channels) (2 + ((channels) + 1) / 2 + (channels))
+/* The word of channel 0's value range inside an entry. */
+#define OCTO_NODE_RANGE_WORD(channels) (2 + ((channels) + 1) / 2)
 /* Octant bits of a child inside its parent (child index & 1 per axis). */
 #define OCTO_OCTANT_X 1
 #define OCTO_OCTANT_Y 2
@@ -61,6 +64,14 @@ ulong OctoChildNode(uint group, uint octant) {
 float OctoNodeAverage(__global const uint* nodes, ulong node, OctoTreeGeometry g, int c) {
   const uint word = OctoNodeWord(nodes, node, g, OCTO_NODE_AVERAGE_WORD + c / 2);
   return (float)((word >> (16 * (c & 1))) & 0xffffu);
+}
+
+/* Channel c's subtree value range of a node: (min, max) in stored units. Every stored voxel of
+ * the node and its descendants, hence every trilinear sample of their bricks that reads only
+ * voxels inside the node's box, lies in it. */
+uint2 OctoNodeRange(__global const uint* nodes, ulong node, OctoTreeGeometry g, int c) {
+  const uint word = OctoNodeWord(nodes, node, g, OCTO_NODE_RANGE_WORD(g.channels) + c);
+  return (uint2)(word & 0xffffu, word >> 16);
 }
 
 /* Samples of one stored brick: (bs + 2)^3 voxels times C channels. */

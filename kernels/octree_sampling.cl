@@ -96,11 +96,17 @@ typedef struct OctoTrilinear {
 /* The trilinear footprint of p in the stored brick of the level-`level` node `index`. 32-bit
  * offsets inside the brick: a stored brick holds at most 258^3 * 64 < 2^32 samples.
  * REQUIRES: p inside that node's interior (then the footprint lies in the stored box). */
+OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos);
 OctoTrilinear OctoTrilinearAt(OctoTreeGeometry g, int4 index, int level, float3 p) {
   const int3 bs = OctoBrickSize(g);
   /* Brick-local coordinates of p in units of level voxels, relative to the stored box's corner
    * (interior origin - 1) and shifted by half a voxel, so the voxel centres are integers. */
-  const float3 brick_pos = p * ldexp(1.0f, -level) + 0.5f - convert_float3(index.xyz * bs);
+  return OctoTrilinearLocal(g, p * ldexp(1.0f, -level) + 0.5f - convert_float3(index.xyz * bs));
+}
+
+/* The same from brick-local coordinates (as OctoTrilinearAt computes them). */
+OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos) {
+  const int3 bs = OctoBrickSize(g);
   const float3 floor_local = floor(brick_pos);
   const int3 i0 = clamp(convert_int3(floor_local), (int3)(0), bs);
   OctoTrilinear t;

@@ -163,11 +163,16 @@ float4 OctoCompositeUnder(float4 acc, float3 mix_rgb, float transmit) {
   return acc;
 }
 
-/* Adds n to the 64-bit sample counter held as two uint words (carry on wrap-around). */
-void OctoAddSamples(volatile __global uint* counters, uint n) {
+/* Adds n to the 64-bit counter held as the two uint words lo, lo + 1 (carry on wrap-around). */
+void OctoAddCount64(volatile __global uint* counters, int lo, uint n) {
   if (n == 0u) return;
-  const uint old = atomic_add(&counters[OCTO_COUNTER_SAMPLES_LO], n);
-  if (old + n < old) atomic_inc(&counters[OCTO_COUNTER_SAMPLES_HI]);
+  const uint old = atomic_add(&counters[lo], n);
+  if (old + n < old) atomic_inc(&counters[lo + 1]);
+}
+
+/* Adds n to the 64-bit sample counter. */
+void OctoAddSamples(volatile __global uint* counters, uint n) {
+  OctoAddCount64(counters, OCTO_COUNTER_SAMPLES_LO, n);
 }
 
 /* The pixel of the current ray state (DVR: composited over the background; MIP/MinIP: the

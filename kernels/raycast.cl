@@ -4,7 +4,12 @@
  *
  * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP) and OCTO_REFINE
  * (0: full frame, one pass, missing bricks replaced by coarser data; 1: refinement, a ray pauses
- * at the first sample whose wanted brick is missing and resumes in the next pass).
+ * at the first sample whose wanted brick is missing and resumes in the next pass). Optional
+ * specialisation for one frame's channels (VolumeRenderer builds and caches one program per
+ * variant; without them the run-time values of the frame are used): OCTO_ACTIVE (the number of
+ * enabled channels, >= 1) with OCTO_CHANNELS (their volume channels, comma-separated), so the
+ * channel loops have a fixed trip count and constant channel offsets; OCTO_IDENTITY (1 when no
+ * enabled channel has a transform, 0 otherwise).
  *
  * Per ray: clip [t_min, inf) to the box [0, n] and the planes (as ClipRayToVolume); the level of
  * detail from the pixel footprint (orthographic: one level; perspective: bands of constant level,
@@ -24,6 +29,22 @@
 
 #ifndef OCTO_REFINE
 #define OCTO_REFINE 0
+#endif
+
+#ifdef OCTO_ACTIVE
+#define OCTO_ACTIVE_N OCTO_ACTIVE
+#define OCTO_STATE_CHANNELS OCTO_ACTIVE
+__constant int kOctoChannels[OCTO_ACTIVE] = {OCTO_CHANNELS};
+#define OCTO_CHANNEL_OF(k) kOctoChannels[k]
+#else
+#define OCTO_ACTIVE_N f.active_channels
+#define OCTO_STATE_CHANNELS OCTO_MAX_ACTIVE_CHANNELS
+#define OCTO_CHANNEL_OF(k) channels[k].channel
+#endif
+#ifdef OCTO_IDENTITY
+#define OCTO_ALL_IDENTITY OCTO_IDENTITY
+#else
+#define OCTO_ALL_IDENTITY f.all_identity
 #endif
 
 /* Full frame: a resident ancestor more than this many levels above the wanted node is too coarse;
@@ -120,26 +141,132 @@ float OctoSourceRead(__global const uint* nodes, OctoTreeGeometry g, OctoSource 
   return OctoNodeAverage(nodes, src.average_node, g, c);
 }
 
+/* Whether node `node`'s subtree cannot change the ray (value-range skipping): DVR, every enabled
+ * channel's range maps to zero opacity (max <= visible_lo or min >= visible_hi, computed on the
+ * host from the transfer function); MIP (MinIP), every channel's running extremum is already at
+ * least the range's max (at most its min) — "not sampled" never is. */
+bool OctoNodeInert(__global const uint* nodes, ulong node, OctoTreeGeometry g, OctoRenderFrame f,
+                   __global const OctoChannelParams* channels, const float* extreme) {
+  (void)f; /* Only the unspecialised channel count reads it. */
+  for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+    const uint2 r = OctoNodeRange(nodes, node, g, OCTO_CHANNEL_OF(k));
+#if OCTO_MODE == OCTO_MODE_DVR
+    (void)extreme;
+    if (!((float)r.y <= channels[k].visible_lo || (float)r.x >= channels[k].visible_hi)) {
+      return false;
+    }
+#elif OCTO_MODE == OCTO_MODE_MIP
+    (void)channels;
+    if (!(extreme[k] >= (float)r.y)) return false;
+#else
+    (void)channels;
+    if (!(extreme[k] <= (float)r.x)) return false;
+#endif
+  }
+  return true;
+}
+
+/* The coarsest node on p's path (root down to `level`) that is inert (OctoNodeInert) and whose
+ * box, shrunk by half a voxel of the node's own level, contains p. A sample inside that shrunk
+ * box reads level-L <= node-level voxels of the node's subtree only (trilinear footprints reach
+ * half a voxel), or a node average: values inside the subtree's range, so it cannot change the
+ * ray. Returns whether there is one, with its shrunk box (level-0 coordinates) in *lo, *hi;
+ * *near_face when some inert node of the path has p in its shell instead. */
+bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g, float3 p, int level,
+                  OctoRenderFrame f, __global const OctoChannelParams* channels,
+                  const float* extreme, float3* lo, float3* hi, bool* near_face) {
+  const int target = clamp(level, 0, g.root_level);
+  ulong node = 0;
+  int l = g.root_level;
+  int4 index = (int4)(0);
+  uint word0 = OctoNodeWord(nodes, 0, g, 0);
+  *near_face = false;
+  for (;;) {
+    if (OctoNodeInert(nodes, node, g, f, channels, extreme)) {
+      const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, l);
+      const float half_voxel = ldexp(0.5f, l);
+      const float3 box_lo = convert_float3(index.xyz) * size + half_voxel;
+      const float3 box_hi = box_lo + size - 2.0f * half_voxel;
+      if (all(p > box_lo) && all(p < box_hi)) {
+        *lo = box_lo;
+        *hi = box_hi;
+        return true;
+      }
+      *near_face = true;
+    }
+    const uint group = OctoNodeChildGroup(word0);
+    if (l <= target || group == 0u) return false;
+    /* Descend as OctoFindNode does (residency does not matter: ranges are always present). */
+    const int4 child = OctoNodeIndex(p, l - 1, g);
+    const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
+                               (child.z & 1) * OCTO_OCTANT_Z);
+    node = OctoChildNode(group, octant);
+    index = child;
+    --l;
+    word0 = OctoNodeWord(nodes, node, g, 0);
+  }
+}
+
+/* The band-local index of the first segment whose midpoint lies at or beyond the ray's exit from
+ * the box [lo, hi] (the ray at `entry` + u * arc is inside it now), at most band_n: the segments
+ * before it all have their midpoints inside the box. A margin for rounding: a midpoint near the
+ * face is sampled rather than skipped. */
+uint OctoFirstSegmentBeyond(float3 entry, float3 u, float entry_abs, float3 lo, float3 hi,
+                            float band_start, float band_end, float dt, uint band_n) {
+  float arc_exit = INFINITY;
+  if (u.x != 0.0f) arc_exit = fmin(arc_exit, ((u.x > 0.0f ? hi.x : lo.x) - entry.x) / u.x);
+  if (u.y != 0.0f) arc_exit = fmin(arc_exit, ((u.y > 0.0f ? hi.y : lo.y) - entry.y) / u.y);
+  if (u.z != 0.0f) arc_exit = fmin(arc_exit, ((u.z > 0.0f ? hi.z : lo.z) - entry.z) / u.z);
+  arc_exit = fmin(arc_exit, band_end);
+  const float margin = 1e-3f + 1e-5f * (arc_exit + entry_abs);
+  const float target = ceil((arc_exit - margin - band_start) / dt - 0.5f);
+  if (!(target > 0.0f)) return 0u;
+  return target >= (float)band_n ? band_n : (uint)target;
+}
+
 __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g,
                       OctoRenderFrame f, __global const OctoChannelParams* channels,
                       __global const float4* lut, volatile __global uint* request_flags,
                       volatile __global uint* request_list, uint request_capacity,
                       __global uint* slot_used, uint frame, __global float4* image,
                       volatile __global uint* counters, __global uint* ray_next,
-                      __global float4* ray_acc, __global float* ray_extreme) {
+                      __global float4* ray_acc, __global float* ray_extreme,
+                      __global const uint* tiles_in, __global uint* tiles_out,
+                      volatile __global uint* tile_stamp, uint tile_offset, uint tile_count,
+                      int all_tiles) {
+#if OCTO_REFINE
+  /* A 1-D range of OCTO_TILE^2 work items per tile of the slice [tile_offset, tile_offset +
+   * tile_count) of the tile list (the tiles that still have unfinished rays; all tiles in the
+   * first sweep): finished rays cost nothing, and a tile's rays are neighbours that share
+   * bricks. */
+  const uint gid = (uint)get_global_id(0);
+  if (gid / (OCTO_TILE * OCTO_TILE) >= tile_count) return;
+  const uint entry_index = tile_offset + gid / (OCTO_TILE * OCTO_TILE);
+  const uint tile = all_tiles ? entry_index : tiles_in[entry_index];
+  const uint tiles_x = (uint)(f.width + OCTO_TILE - 1) / OCTO_TILE;
+  const uint within = gid % (OCTO_TILE * OCTO_TILE);
+  const int px = (int)((tile % tiles_x) * OCTO_TILE + within % OCTO_TILE);
+  const int py = (int)((tile / tiles_x) * OCTO_TILE + within / OCTO_TILE);
+  if (px >= f.width || py >= f.height) return;
+  const int pixel = py * f.width + px;
+  uint first = ray_next[pixel];
+  if (first == OCTO_RAY_DONE) return; /* Finished in an earlier pass. */
+#else
   /* 2-D range over the image, rounded up to whole tiles: neighbouring rays of a work group read
    * the same bricks. */
   const int px = (int)get_global_id(0);
   const int py = (int)get_global_id(1);
   if (px >= f.width || py >= f.height) return;
   const int pixel = py * f.width + px;
-#if OCTO_REFINE
-  uint first = ray_next[pixel];
-  if (first == OCTO_RAY_DONE) return; /* Finished in an earlier pass. */
-#else
   (void)ray_next;
   (void)ray_acc;
   (void)ray_extreme;
+  (void)tiles_in;
+  (void)tiles_out;
+  (void)tile_stamp;
+  (void)tile_offset;
+  (void)tile_count;
+  (void)all_tiles;
   const uint first = 0u;
 #endif
 
@@ -154,9 +281,9 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 
   /* Ray state: accumulated premultiplied colour (DVR) or per-channel extremum (MIP/MinIP). */
   float4 acc = (float4)(0.0f);
-  float extreme[OCTO_MAX_ACTIVE_CHANNELS];
+  float extreme[OCTO_STATE_CHANNELS];
 #if OCTO_MODE != OCTO_MODE_DVR
-  for (int k = 0; k < f.active_channels; ++k) {
+  for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
 #if OCTO_REFINE
     extreme[k] = ray_extreme[(size_t)pixel * (size_t)f.active_channels + (size_t)k];
 #else
@@ -172,6 +299,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 #endif
 
   uint samples = 0u;
+  uint skipped = 0u; /* Channel samples skipped by value ranges. */
   bool paused = false;
   uint i = first; /* Global sample index over all bands (the refinement's ray state). */
   if (!empty) {
@@ -205,8 +333,18 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     __global const ushort* shared_brick = bricks0;
     bool cached = false;
     int cached_level = -1;
+    /* Its wanted box in the band's level coordinates; `fast`: the hit is the wanted node itself,
+     * resident at the sample's level, so a sample inside the box reads its brick at brick-local
+     * coordinates level_pos + 0.5 - brick_origin (no traversal, no per-sample node logic). */
     float3 cache_lo = (float3)(0.0f);
     float3 cache_hi = (float3)(0.0f);
+    bool fast = false;
+    float3 brick_origin = (float3)(0.0f);
+    /* The band's level coordinates: position = entry_l + u_l * arc, clamped to the level's valid
+     * voxel centres [0.5, valid_hi] (OctoClampToLevel; scaling by 2^-level is exact). */
+    float3 entry_l = entry;
+    float3 u_l = u;
+    float3 valid_hi = (float3)(0.0f);
     for (;;) {
       if (!band_ready) {
         /* The band of `level` ends where the footprint reaches 2^(level + 1). */
@@ -221,6 +359,11 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
          * ray always has at least one. */
         const float floor_n = (band_base == 0u && last_band) ? 1.0f : 0.0f;
         band_n = (uint)fmax(floor_n, ceil((band_end - band_start - rounding) / dt));
+        const float level_scale = ldexp(1.0f, -level);
+        entry_l = entry * level_scale;
+        u_l = u * level_scale;
+        const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
+        valid_hi = convert_float3((n + (1 << level) - 1) >> level) - 0.5f;
         band_ready = true;
       }
       if (i >= band_base + band_n) {
@@ -241,30 +384,52 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       /* Without transforms every channel reads the same node: traverse once, and only when the
        * sample left the previous hit's wanted box. */
       float3 shared_q = p;
+      float3 level_pos = p;
       bool fresh = true;
-      if (f.all_identity) {
-        shared_q = OctoClampToLevel(p, level, g);
-        if (cached && cached_level == level && all(shared_q >= cache_lo) &&
-            all(shared_q < cache_hi)) {
+      if (OCTO_ALL_IDENTITY) {
+        level_pos = clamp(entry_l + u_l * arc, 0.5f, valid_hi);
+        shared_q = level_pos * ldexp(1.0f, level);
+        if (cached && cached_level == level && all(level_pos >= cache_lo) &&
+            all(level_pos < cache_hi)) {
           fresh = false;
         } else {
+          /* Value ranges: jump over the inert node around p (before anything is requested). A
+           * sample in an inert node's shell is taken, but not cached: the next one checks again. */
+          bool near_face = false;
+          if (f.skip_empty) {
+            float3 inert_lo;
+            float3 inert_hi;
+            if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
+                             &near_face)) {
+              const uint target = OctoFirstSegmentBeyond(entry, u, entry_abs, inert_lo, inert_hi,
+                                                         band_start, band_end, dt, band_n);
+              if (target > j) {
+                skipped += (target - j) * (uint)OCTO_ACTIVE_N;
+                i = band_base + target;
+                continue;
+              }
+            }
+          }
           shared_hit = OctoFindNode(nodes, g, shared_q, level);
           shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
           const float3 size =
-              convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level);
+              convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level - level);
           cache_lo =
               convert_float3(OctoNodeIndex(shared_q, shared_hit.wanted_level, g).xyz) * size;
           cache_hi = cache_lo + size;
-          cached = true;
+          cached = !near_face;
           cached_level = level;
+          fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
+                 shared_hit.level == level;
+          brick_origin = convert_float3(shared_hit.index.xyz * OctoBrickSize(g));
         }
       }
 #if OCTO_REFINE
       /* Refinement samples only the wanted level: a missing brick pauses the ray here. */
       bool missing = false;
-      for (int k = 0; k < f.active_channels; ++k) {
+      for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
         OctoNodeHit hit;
-        if (f.all_identity) {
+        if (OCTO_ALL_IDENTITY) {
           if (k > 0) break;
           hit = shared_hit;
         } else {
@@ -292,14 +457,22 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 #endif
       /* All channels at one position read one source: resolve it once. */
       OctoSource shared_src;
-      if (f.all_identity) {
-        shared_src = OctoResolveSource(shared_brick, g, shared_hit, shared_q, level, fresh,
-                                       request_flags, request_list, request_capacity, slot_used,
-                                       frame, counters);
+      if (OCTO_ALL_IDENTITY) {
+        if (!fresh && fast) {
+          /* Brick-local marching: the same brick, addressed from the level position. */
+          shared_src.brick = shared_brick;
+          shared_src.from_brick = true;
+          shared_src.average_node = shared_hit.node;
+          shared_src.tri = OctoTrilinearLocal(g, level_pos + 0.5f - brick_origin);
+        } else {
+          shared_src = OctoResolveSource(shared_brick, g, shared_hit, shared_q, level, fresh,
+                                         request_flags, request_list, request_capacity,
+                                         slot_used, frame, counters);
+        }
       }
-      for (int k = 0; k < f.active_channels; ++k) {
+      for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
         OctoSource src;
-        if (f.all_identity) {
+        if (OCTO_ALL_IDENTITY) {
           src = shared_src;
         } else {
           float3 q;
@@ -310,7 +483,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                                   true, request_flags, request_list, request_capacity, slot_used,
                                   frame, counters);
         }
-        const float v = OctoSourceRead(nodes, g, src, channels[k].channel);
+        const float v = OctoSourceRead(nodes, g, src, OCTO_CHANNEL_OF(k));
         ++samples;
 #if OCTO_MODE == OCTO_MODE_DVR
         /* Per-sample intermixing: premultiplied colours add, alphas combine. */
@@ -337,32 +510,36 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       /* Empty space: a brickless leaf gives the same value everywhere in its box, so jump to the
        * first midpoint beyond the box, within the band (the level, hence the leaf, is the same
        * there; the next band starts over). */
-      if (skippable && f.skip_empty && f.all_identity && !OctoNodeHasBrick(shared_hit.word0) &&
+      if (skippable && f.skip_empty && OCTO_ALL_IDENTITY && !OctoNodeHasBrick(shared_hit.word0) &&
           OctoNodeChildGroup(shared_hit.word0) == 0u && shared_hit.node == shared_hit.wanted) {
         const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.level);
         const float3 lo = convert_float3(shared_hit.index.xyz) * size;
-        const float3 hi = lo + size;
-        float arc_exit = INFINITY;
-        if (u.x != 0.0f) arc_exit = fmin(arc_exit, ((u.x > 0.0f ? hi.x : lo.x) - entry.x) / u.x);
-        if (u.y != 0.0f) arc_exit = fmin(arc_exit, ((u.y > 0.0f ? hi.y : lo.y) - entry.y) / u.y);
-        if (u.z != 0.0f) arc_exit = fmin(arc_exit, ((u.z > 0.0f ? hi.z : lo.z) - entry.z) / u.z);
-        arc_exit = fmin(arc_exit, band_end);
-        /* A margin for rounding: a midpoint near the face is sampled rather than skipped. */
-        const float margin = 1e-3f + 1e-5f * (arc_exit + entry_abs);
-        const float target = ceil((arc_exit - margin - band_start) / dt - 0.5f);
-        if (target > (float)next) next = target >= (float)band_n ? band_n : (uint)target;
+        const uint target = OctoFirstSegmentBeyond(entry, u, entry_abs, lo, lo + size, band_start,
+                                                   band_end, dt, band_n);
+        if (target > next) {
+          skipped += (target - next) * (uint)OCTO_ACTIVE_N;
+          next = target;
+        }
       }
       i = band_base + next;
     }
   }
   OctoAddSamples(counters, samples);
+  OctoAddCount64(counters, OCTO_COUNTER_SKIPPED_LO, skipped);
 #if OCTO_REFINE
   if (paused) {
+    /* The tile goes on the next sweep's list once per pass (the first ray of the pass to pause
+     * adds it; stamps are octree frames, new every pass). The host appends a sweep's slices one
+     * after another (the counter starts where the last slice ended) and re-runs a slice from
+     * the same counter, so each tile is listed once. */
+    if (atomic_xchg(&tile_stamp[tile], frame) != frame) {
+      tiles_out[atomic_inc(&counters[OCTO_COUNTER_NEXT_TILES])] = tile;
+    }
     ray_next[pixel] = i;
 #if OCTO_MODE == OCTO_MODE_DVR
     ray_acc[pixel] = acc;
 #else
-    for (int k = 0; k < f.active_channels; ++k) {
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
       ray_extreme[(size_t)pixel * (size_t)f.active_channels + (size_t)k] = extreme[k];
     }
 #endif

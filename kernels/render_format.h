@@ -23,7 +23,8 @@
  *   transform: 3x4 row-major, voxel space (S^-1 T S); identity = 1 when it is the identity.
  *   window_lo, inv_window, gamma, opacity_scale, color: the transfer function
  *   (render_params.h); lut: index of its 256 float4 entries in the LUT buffer (entries / 255),
- *   -1 for none; channel: the volume channel.
+ *   -1 for none; channel: the volume channel; visible_lo / visible_hi: outside (visible_lo,
+ *   visible_hi) the channel's opacity is exactly 0 (value-range skipping).
  */
 #ifndef OCTOSCOPE_KERNELS_RENDER_FORMAT_H_
 #define OCTOSCOPE_KERNELS_RENDER_FORMAT_H_
@@ -48,7 +49,15 @@
 #define OCTO_COUNTER_SAMPLES_HI 2
 /* Distinct brick slots the pass sampled (its working set; counted once per slot per frame). */
 #define OCTO_COUNTER_SLOTS_USED 3
-#define OCTO_COUNTER_WORDS 4
+/* Channel samples skipped by empty-space skipping (64-bit as two words, like the samples). */
+#define OCTO_COUNTER_SKIPPED_LO 4
+#define OCTO_COUNTER_SKIPPED_HI 5
+/* Refinement: tiles appended to the next pass's tile list. */
+#define OCTO_COUNTER_NEXT_TILES 6
+#define OCTO_COUNTER_WORDS 7
+
+/* Work shape: rays in square tiles of OCTO_TILE x OCTO_TILE pixels (one work group each). */
+#define OCTO_TILE 8
 
 typedef struct OctoRenderFrame {
   float origin[3];
@@ -83,6 +92,10 @@ typedef struct OctoChannelParams {
   int channel;
   int lut;
   int identity;
+  /* DVR value-range skipping: stored values v <= visible_lo or v >= visible_hi give opacity 0
+   * (conservative bounds of the transfer function's support; +-INFINITY when there is none). */
+  float visible_lo;
+  float visible_hi;
   int pad0;
 } OctoChannelParams;
 

@@ -530,7 +530,8 @@ struct Timed {
   double ms = 0;         // Whole frame call (median).
   double ms_kernel = 0;  // Kernel only (median).
   uint64_t samples = 0;
-  ImageError error;  // Against the CPU reference (its central crop).
+  uint64_t skipped = 0;  // Channel samples empty-space skipping jumped over.
+  ImageError error;      // Against the CPU reference (its central crop).
   RenderImage image;
 };
 
@@ -558,6 +559,7 @@ struct FrameTiming {
   double ms = 0;
   double ms_kernel = 0;
   uint64_t samples = 0;
+  uint64_t skipped = 0;
 };
 
 // Medians of the frames' timings.
@@ -569,6 +571,7 @@ Timed Summarize(const std::vector<FrameTiming>& frames, RenderImage image) {
     kernel_ms.push_back(f.ms_kernel);
     rate.push_back(f.ms_kernel > 0 ? f.samples / (f.ms_kernel * 1e3) : 0);
     t.samples = f.samples;
+    t.skipped = f.skipped;
   }
   t.ms = Median(ms);
   t.ms_kernel = Median(kernel_ms);
@@ -623,7 +626,7 @@ Result<KernelVsLoop> MeasureKernelVsLoop(const Bench& b, bench::DenseKernel& den
          {std::tuple{&r_on, &on, &t_on, &i_on}, std::tuple{&r_off, &off, &t_off, &i_off}}) {
       render::FrameStats s;
       OCTO_ASSIGN_OR_RETURN(*image, r->renderer->RenderFullFrame(camera, params, *options, &s));
-      timings->push_back({s.ms_total, s.ms_kernel, s.samples});
+      timings->push_back({s.ms_total, s.ms_kernel, s.samples, s.samples_skipped});
     }
     bench::DenseKernelStats s;
     OCTO_ASSIGN_OR_RETURN(i_dense, dense.Render(camera, params, &s));
@@ -1029,8 +1032,8 @@ int RunBenchRender(std::span<const std::string> args) {
     head << "- **(a1) " << name << ": plain kernel frame " << Format("%.1f", k->dense.ms)
          << " ms ÷ octree renderer frame " << Format("%.1f", k->octree.ms)
          << " ms = " << Format("%.2f", frame) << "×** (goal ≥ 3, sparse data); " << where
-         << ", empty-space skipping on (" << k->octree.samples << " samples, "
-         << Format("%.1f", k->octree.msamples) << " Msamples/s; octree "
+         << ", empty-space skipping on (" << k->octree.samples << " samples, " << k->octree.skipped
+         << " skipped, " << Format("%.1f", k->octree.msamples) << " Msamples/s; octree "
          << error_text(k->octree.error) << ").\n";
     const double ratio = k->loop_msamples > 0 ? k->octree.msamples / k->loop_msamples : 0;
     report.headlines.push_back(

@@ -21,7 +21,7 @@ static_assert(CompleteTreeChildGroups(10) == 153'391'690);
 static_assert(CompleteTreeChildGroups(10) <= kChildGroupCapacity);
 // One level deeper (32^3 bricks for 65536^3) would not fit: 1,227,133,514 > 2^29.
 static_assert(CompleteTreeChildGroups(11) > kChildGroupCapacity);
-static_assert(NodeWords(1) == 3 && NodeWords(2) == 3 && NodeWords(3) == 4 && NodeWords(4) == 4);
+static_assert(NodeWords(1) == 4 && NodeWords(2) == 5 && NodeWords(3) == 7 && NodeWords(4) == 8);
 
 }  // namespace
 
@@ -62,12 +62,31 @@ Status EncodeNode(const DeviceNode& node, std::span<uint32_t> out) {
   if (node.in_buffer && !node.has_brick) {
     return InvalidArgumentError("device node: in_buffer set on a node without a brick");
   }
+  const bool ranges = !node.range_min.empty() || !node.range_max.empty();
+  if (ranges) {
+    if (node.range_min.size() != node.averages.size() ||
+        node.range_max.size() != node.averages.size()) {
+      return InvalidArgumentError("device node: value ranges need one min and max per channel");
+    }
+    for (size_t c = 0; c < node.averages.size(); ++c) {
+      if (node.range_min[c] > node.range_max[c]) {
+        return InvalidArgumentError("device node: channel " + std::to_string(c) +
+                                    " range min exceeds max");
+      }
+    }
+  }
   out[0] = EncodeWord0(node.in_buffer, node.has_brick, node.child_group);
   out[1] = node.in_buffer ? node.brick_slot : 0;
   for (int k = 0; 2 * k < channels; ++k) {
     const uint32_t lo = node.averages[2 * k];
     const uint32_t hi = 2 * k + 1 < channels ? node.averages[2 * k + 1] : 0;
     out[2 + k] = lo | (hi << 16);
+  }
+  const int range_word = NodeRangeWord(channels);
+  for (int c = 0; c < channels; ++c) {
+    const uint32_t lo = ranges ? node.range_min[c] : 0u;
+    const uint32_t hi = ranges ? node.range_max[c] : 0xffffu;
+    out[range_word + c] = lo | (hi << 16);
   }
   return Status::Ok();
 }
@@ -82,6 +101,13 @@ DeviceNode DecodeNode(std::span<const uint32_t> words, int channels) {
   for (int c = 0; c < channels; ++c) {
     const uint32_t word = words[2 + c / 2];
     node.averages[c] = static_cast<uint16_t>(c % 2 == 0 ? word & 0xffffu : word >> 16);
+  }
+  node.range_min.resize(static_cast<size_t>(channels));
+  node.range_max.resize(static_cast<size_t>(channels));
+  for (int c = 0; c < channels; ++c) {
+    const uint32_t word = words[NodeRangeWord(channels) + c];
+    node.range_min[c] = static_cast<uint16_t>(word & 0xffffu);
+    node.range_max[c] = static_cast<uint16_t>(word >> 16);
   }
   return node;
 }

@@ -3,7 +3,7 @@
 // section "Device node buffer"). Nodes are stored in child groups of 8 consecutive entries;
 // node id n occupies words [n * NodeWords(C), (n + 1) * NodeWords(C)) of a uint32 buffer.
 //
-// One node = NodeWords(C) = 2 + ceil(C / 2) uint32 words (4 words for up to 4 channels):
+// One node = NodeWords(C) = 2 + ceil(C / 2) + C uint32 words (7 words for 3 channels):
 //   word 0: bit 31 in_buffer (the node's brick is resident in the device brick buffer),
 //           bit 30 has_brick (the node is not homogeneous and owns a brick),
 //           bits 0..29 child group index (0 = no children; group g holds nodes 8g..8g+7;
@@ -11,6 +11,9 @@
 //   word 1: brick-buffer slot; meaningful only when in_buffer, encoded as 0 otherwise.
 //   words 2..: per-channel averages as uint16, two per word: channel 2k in bits 0..15 of word
 //           2 + k, channel 2k + 1 in bits 16..31 (0 when C is odd and 2k + 1 == C).
+//   words 2 + ceil(C / 2) + c: channel c's value range over the node's subtree (every stored
+//           voxel of the node and its descendants, Octree's subtree_min / subtree_max): min in
+//           bits 0..15, max in bits 16..31. The kernels skip nodes whose range cannot contribute.
 // Averages are the node's mean rounded to nearest (ties up) in the STORED sample type, so the
 // encoding is lossless for uint8 and uint16 stored values (a uint16 average is exact to 1/65535
 // of the range, a uint8 one to 1/255).
@@ -41,8 +44,11 @@ inline constexpr uint32_t kMaxChildGroup = kNodeChildGroupMask;
 // in the kernels, so groups are limited to 2^29 (ids < 2^32), below the field's 2^30.
 inline constexpr uint64_t kChildGroupCapacity = uint64_t{1} << 29;
 
-// Words per node for `channels` channels: 2 + ceil(channels / 2). REQUIRES: channels >= 1.
-constexpr int NodeWords(int channels) { return 2 + (channels + 1) / 2; }
+// Words per node for `channels` channels: 2 + ceil(channels / 2) + channels. REQUIRES:
+// channels >= 1.
+constexpr int NodeWords(int channels) { return 2 + (channels + 1) / 2 + channels; }
+// The word of channel 0's value range inside a node's entry.
+constexpr int NodeRangeWord(int channels) { return 2 + (channels + 1) / 2; }
 
 // Node ids in the device buffer: the root is node 0; the 8 children in child group g >= 1 are
 // nodes 8g + octant.
@@ -68,8 +74,12 @@ bool FitsDeviceEncoding(const BrickGeometry& geometry);
 struct DeviceNode {
   bool in_buffer = false;
   bool has_brick = false;
-  uint32_t child_group = 0;        // 0 = no children.
-  uint32_t brick_slot = 0;         // Device brick-buffer slot; 0 unless in_buffer.
+  uint32_t child_group = 0;  // 0 = no children.
+  uint32_t brick_slot = 0;   // Device brick-buffer slot; 0 unless in_buffer.
+  // Per channel, the subtree's value range; empty = the whole stored range [0, 65535] (nothing
+  // can be skipped). When given, both have one entry per channel and min <= max.
+  std::vector<uint16_t> range_min = {};
+  std::vector<uint16_t> range_max = {};
   std::vector<uint16_t> averages;  // One per channel, in stored-type units.
 
   bool operator==(const DeviceNode&) const = default;
@@ -89,7 +99,8 @@ constexpr uint32_t Word0ChildGroup(uint32_t word0) { return word0 & kNodeChildGr
 uint16_t QuantizeAverage(double average, int bytes_per_sample);
 
 // Writes `node` into `out` (exactly NodeWords(averages.size()) words). InvalidArgument when
-// `out` has the wrong size, there are no averages, or in_buffer is set without has_brick;
+// `out` has the wrong size, there are no averages, the ranges are malformed, or in_buffer is set
+// without has_brick;
 // OutOfRange when child_group > kMaxChildGroup. Nothing is written on error. brick_slot is
 // written as 0 unless in_buffer.
 Status EncodeNode(const DeviceNode& node, std::span<uint32_t> out);

@@ -240,6 +240,10 @@ struct DeviceOctree::Impl {
     node.averages.reserve(snap.channels.size());
     for (const octree::ChannelSummary& c : snap.channels) {
       node.averages.push_back(octree::QuantizeAverage(c.avg, bytes_per_sample));
+      // The subtree's range (uint8 trees: the same numbers, widened like the bricks).
+      const bool valid = c.subtree_min <= c.subtree_max;  // Else: nothing is skipped.
+      node.range_min.push_back(valid ? c.subtree_min : uint16_t{0});
+      node.range_max.push_back(valid ? c.subtree_max : uint16_t{0xffff});
     }
     // Cannot fail: the entry has NodeWords(channels) words and the group is a 30-bit index.
     (void)octree::EncodeNode(node, Entry(id));

@@ -34,8 +34,13 @@ enum class FrameBuffer {
   kChannels,        // Per-channel parameters of the kernels.
   kLut,             // Transfer-function tables.
   kCounter,         // Counters written by the kernels.
+  // Refinement: the 8x8 pixel tiles with unfinished rays, as two uint lists of at most one entry
+  // per tile (a pass reads one and writes the other), and a uint stamp per tile.
+  kRayTilesA,
+  kRayTilesB,
+  kRayTileStamp,
 };
-inline constexpr int kFrameBufferCount = 7;
+inline constexpr int kFrameBufferCount = 10;
 
 // Bytes per FrameBuffer (indexed by its value); 0 = the frame does not use it.
 using FrameBufferSizes = std::array<uint64_t, kFrameBufferCount>;

@@ -28,6 +28,7 @@ static_assert((OCTO_OCTANT_X | OCTO_OCTANT_Y | OCTO_OCTANT_Z) == 7 && OCTO_OCTAN
 constexpr bool NodeWordsAgree() {
   for (int c = 1; c <= oc::kMaxChannels; ++c) {
     if (OCTO_NODE_WORDS(c) != oc::NodeWords(c)) return false;
+    if (OCTO_NODE_RANGE_WORD(c) != oc::NodeRangeWord(c)) return false;
   }
   return true;
 }

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 namespace octoscope::render {
@@ -17,6 +18,54 @@ int KernelModeDefine(RenderMode mode) {
   }
   return OCTO_MODE_DVR;
 }
+
+namespace {
+
+// The stored value at which the device's windowed value (float, as OctoWindowed) reaches
+// `t_threshold` (after gamma), moved outwards by `margin` in the direction `sign`.
+float WindowValueAt(const OctoChannelParams& ch, double t_threshold, double sign) {
+  const double width = 1.0 / static_cast<double>(ch.inv_window);
+  const double t = std::pow(t_threshold, 1.0 / static_cast<double>(ch.gamma));
+  // Float rounding of the window arithmetic on the device: a margin of 1e-4 of the width.
+  const double margin = 1e-4 * width + 1e-2;
+  return static_cast<float>(static_cast<double>(ch.window_lo) + t * width + sign * margin);
+}
+
+// DVR value-range skipping (kernels/raycast.cl, OctoNodeInert): bounds outside which the
+// channel's opacity is exactly 0, conservative (a zero-alpha gap inside the LUT is not used).
+//  * opacity_scale 0 or a LUT without any positive alpha: nothing is visible.
+//  * no LUT: alpha = t * scale, 0 exactly when v <= window_lo (then v - lo <= 0 in float).
+//  * a LUT whose first positive alpha is entry a: x = 255 t <= a - 1 interpolates two zero
+//    entries; whose last is entry b < 255: x >= b + 1 does.
+void SetVisibleRange(const ChannelParams& cp, OctoChannelParams* ch) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  ch->visible_lo = -kInf;
+  ch->visible_hi = kInf;
+  if (!(cp.opacity_scale > 0)) {
+    ch->visible_lo = kInf;
+    return;
+  }
+  if (!cp.lut) {
+    ch->visible_lo = ch->window_lo;
+    return;
+  }
+  int first = -1;
+  int last = -1;
+  for (int i = 0; i < kLutEntries; ++i) {
+    if ((*cp.lut)[i].a == 0) continue;
+    if (first < 0) first = i;
+    last = i;
+  }
+  if (first < 0) {
+    ch->visible_lo = kInf;
+    return;
+  }
+  if (first == 1) ch->visible_lo = ch->window_lo;
+  if (first >= 2) ch->visible_lo = WindowValueAt(*ch, (first - 1) / 255.0, -1);
+  if (last < kLutEntries - 1) ch->visible_hi = WindowValueAt(*ch, (last + 1) / 255.0, +1);
+}
+
+}  // namespace
 
 PackedFrame PackRenderFrame(const Camera& camera, const RenderParams& params, double lod_bias,
                             bool skip_empty, const std::array<int64_t, 3>& volume_size,
@@ -95,6 +144,7 @@ PackedFrame PackRenderFrame(const Camera& camera, const RenderParams& params, do
         for (uint8_t v : {e.r, e.g, e.b, e.a}) out.lut.push_back(static_cast<float>(v / 255.0));
       }
     }
+    SetVisibleRange(cp, &ch);
     out.channels.push_back(ch);
   }
   f.active_channels = static_cast<int>(out.channels.size());

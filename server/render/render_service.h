@@ -157,9 +157,9 @@ struct RenderServiceOptions {
   double refine_share = 0.25;
   double quantum_ms = 10;
   // Volume refinements whose request sets no FrameOptions::pass_target_ms get this one: a pass
-  // covers a band of rows taking about this long, so a full frame waits at most about this long
-  // for a refinement pass in flight, however large the refinement (a 4K screenshot). 0 = whole
-  // images per pass.
+  // runs a slice of the unfinished tiles taking about this long, so a full frame waits at most
+  // about this long for a refinement pass in flight, however large the refinement (a 4K
+  // screenshot). 0 = every pass runs all unfinished tiles.
   double refine_pass_ms = 50;
   // A dataset's mirror is dropped this long after its last view closed.
   std::chrono::milliseconds mirror_idle_timeout{30'000};

@@ -37,12 +37,13 @@ static_assert(offsetof(OctoRenderFrame, step) == 140);
 static_assert(offsetof(OctoRenderFrame, clip_count) == 144);
 static_assert(offsetof(OctoRenderFrame, active_channels) == 156);
 static_assert(offsetof(OctoRenderFrame, inv_reference) == 168);
-static_assert(sizeof(OctoChannelParams) == 24 * 4);
+static_assert(sizeof(OctoChannelParams) == 26 * 4);
 static_assert(offsetof(OctoChannelParams, color) == 48);
 static_assert(offsetof(OctoChannelParams, window_lo) == 64);
 static_assert(offsetof(OctoChannelParams, channel) == 80);
 static_assert(offsetof(OctoChannelParams, lut) == 84);
 static_assert(offsetof(OctoChannelParams, identity) == 88);
+static_assert(offsetof(OctoChannelParams, visible_lo) == 92);
 static_assert(OCTO_MAX_CLIP_PLANES == kMaxClipPlanes && OCTO_LUT_ENTRIES == kLutEntries);
 static_assert(OCTO_MAX_ACTIVE_CHANNELS == octree::kMaxChannels);
 static_assert(kMaxBrickAllocations == 4);  // OCTO_BRICK_BUFFER_PARAMS takes four buffers.
@@ -52,7 +53,15 @@ namespace {
 using Clock = std::chrono::steady_clock;
 
 // Work-group tile of the ray-casting kernels (pixels per side).
-constexpr int kTile = 8;
+constexpr int kTile = OCTO_TILE;
+
+// Tiles of kTile x kTile pixels covering a width x height image.
+uint64_t TileCount(int width, int height) {
+  const auto tiles = [](int n) {
+    return static_cast<uint64_t>((std::max(n, 0) + kTile - 1) / kTile);
+  };
+  return tiles(width) * tiles(height);
+}
 
 double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
@@ -64,7 +73,24 @@ struct FrameInputs {
   cl_mem channels = nullptr;  // OctoChannelParams per enabled channel (at least one entry).
   cl_mem lut = nullptr;       // float4 entries (at least one).
   int active = 0;
+  // The program variant's specialising defines (kernels/raycast.cl): the enabled channels and
+  // whether all of them are untransformed; empty when no channel is enabled.
+  std::string variant;
 };
+
+// -DOCTO_ACTIVE / OCTO_CHANNELS / OCTO_IDENTITY for the enabled channels of `packed`.
+std::string VariantDefines(const PackedFrame& packed) {
+  if (packed.frame.active_channels <= 0) return "";
+  std::string defines = " -DOCTO_ACTIVE=";
+  defines.append(std::to_string(packed.frame.active_channels));
+  defines.append(" -DOCTO_CHANNELS=");
+  for (int k = 0; k < packed.frame.active_channels; ++k) {
+    if (k > 0) defines.push_back(',');
+    defines.append(std::to_string(packed.channels[k].channel));
+  }
+  defines.append(packed.all_identity ? " -DOCTO_IDENTITY=1" : " -DOCTO_IDENTITY=0");
+  return defines;
+}
 
 // Enabled channels, and float entries of their LUTs.
 int ActiveChannels(const RenderParams& params) {
@@ -93,6 +119,7 @@ Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera&
   FrameInputs in;
   in.frame = packed.frame;
   in.active = packed.frame.active_channels;
+  in.variant = VariantDefines(packed);
   const std::vector<OctoChannelParams>& channels = packed.channels;
   const std::vector<float>& lut = packed.lut;
   const ClMem& channel_buffer = buffers.handle(FrameBuffer::kChannels);
@@ -123,58 +150,86 @@ struct VolumeRenderer::Impl {
   ProgramCache* programs = nullptr;
   std::string build_options;
   // One kernel per (mode define, refine), created on first use.
-  std::map<std::pair<int, bool>, ClKernel> kernels;
-  ClMem counters;  // OCTO_COUNTER_WORDS uints, cleared before every pass.
-  ClMem dummy;     // Stands in for the ray-state buffers of full frames.
-  // Kernel ms per ray of the last refinement passes (0 = none yet): sizes the row bands of
-  // refinements with a pass target.
-  double refine_ms_per_ray = 0;
+  std::map<std::string, ClKernel> kernels;  // By build options (mode, frame kind, variant).
+  ClMem counters;                           // OCTO_COUNTER_WORDS uints, set before every pass.
+  ClMem dummy;                              // Stands in for the ray-state buffers of full frames.
+  // Kernel ms per listed tile of the last refinement passes (0 = none yet): sizes the slices of
+  // the tile list that refinements with a pass target run per pass.
+  double refine_ms_per_tile = 0;
   std::unique_ptr<FrameBuffers> own_buffers;  // Full frames of callers that pass none.
 
-  Result<cl_kernel> Kernel(RenderMode mode, bool refine) {
-    const auto key = std::make_pair(KernelModeDefine(mode), refine);
-    auto it = kernels.find(key);
+  // The program of (mode, frame kind) specialised for `variant` (VariantDefines), built on
+  // first use and kept: switching channels back and forth does not rebuild.
+  Result<cl_kernel> Kernel(RenderMode mode, bool refine, const std::string& variant) {
+    const std::string options = build_options +
+                                " -DOCTO_MODE=" + std::to_string(KernelModeDefine(mode)) +
+                                " -DOCTO_REFINE=" + (refine ? "1" : "0") + variant;
+    auto it = kernels.find(options);
     if (it == kernels.end()) {
-      const std::string options = build_options + " -DOCTO_MODE=" + std::to_string(key.first) +
-                                  " -DOCTO_REFINE=" + (refine ? "1" : "0");
       OCTO_ASSIGN_OR_RETURN(ClKernel kernel,
                             programs->CreateKernel("raycast.cl", "RayCast", options));
-      it = kernels.emplace(key, std::move(kernel)).first;
+      it = kernels.emplace(options, std::move(kernel)).first;
     }
     return it->second.get();
   }
 
-  // Sets every argument and runs one pass over the width x height pixels; reads the counters back
-  // (finished rays, samples). Adds the kernel time to stats.
+  // Which rays a pass runs: full frames every pixel (2-D tiles); refinement passes the entries
+  // [offset, offset + count) of the tile list `tiles_in` (of the list of all tiles when `all`),
+  // appending to `tiles_out` from index `out_start` on those still unfinished.
+  struct PassTiles {
+    bool refine = false;
+    cl_mem tiles_in = nullptr;
+    cl_mem tiles_out = nullptr;
+    cl_mem stamps = nullptr;
+    uint32_t offset = 0;
+    uint32_t count = 0;
+    bool all = false;
+    uint32_t out_start = 0;
+  };
+
+  // Sets every argument and runs one pass over the width x height pixels (full frames) or the
+  // listed tiles (refinement); reads the counters back (finished rays, samples, the end of the
+  // tiles_out list). Adds the kernel time to stats.
+
   Status RunPass(DeviceOctree& octree, cl_kernel kernel, const FrameInputs& in, uint32_t frame,
                  cl_mem image, cl_mem ray_next, cl_mem ray_acc, cl_mem ray_extreme, int width,
-                 int height, uint32_t* finished, uint64_t* samples, FrameStats* stats,
-                 int first_row = 0) {
-    const uint32_t zeros[OCTO_COUNTER_WORDS] = {0, 0, 0, 0};
-    OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(zeros), zeros));
+                 int height, const PassTiles& tiles, uint32_t* finished, uint64_t* samples,
+                 uint32_t* next_tiles, FrameStats* stats) {
+    // Zero, but the tile list appends where the sweep's earlier passes left off.
+    uint32_t initial[OCTO_COUNTER_WORDS] = {};
+    initial[OCTO_COUNTER_NEXT_TILES] = tiles.out_start;
+    OCTO_RETURN_IF_ERROR(context->WriteBuffer(counters, 0, sizeof(initial), initial));
     const auto bricks = octree.brick_buffers();
     OCTO_RETURN_IF_ERROR(SetKernelArgs(
         kernel, octree.node_buffer(), bricks[0], bricks[1], bricks[2], bricks[3],
         octree.slots_per_allocation(), TreeGeometry(octree.geometry()), in.frame, in.channels,
         in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
-        octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme));
+        octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme,
+        tiles.refine ? tiles.tiles_in : dummy.get(), tiles.refine ? tiles.tiles_out : dummy.get(),
+        tiles.refine ? tiles.stamps : dummy.get(), tiles.offset, tiles.count, tiles.all ? 1 : 0));
     const Clock::time_point start = Clock::now();
-    OCTO_RETURN_IF_ERROR(Enqueue(kernel, width, height, first_row));
+    if (tiles.refine) {
+      OCTO_RETURN_IF_ERROR(EnqueueTiles(kernel, tiles.count));
+    } else {
+      OCTO_RETURN_IF_ERROR(Enqueue(kernel, width, height));
+    }
     OCTO_RETURN_IF_ERROR(context->Finish());
     stats->ms_kernel += MsSince(start);
     uint32_t words[OCTO_COUNTER_WORDS];
     OCTO_RETURN_IF_ERROR(context->ReadBuffer(counters, 0, sizeof(words), words));
     *finished = words[OCTO_COUNTER_FINISHED];
+    *next_tiles = words[OCTO_COUNTER_NEXT_TILES];
     *samples = (uint64_t{words[OCTO_COUNTER_SAMPLES_HI]} << 32) | words[OCTO_COUNTER_SAMPLES_LO];
     stats->slots_used = words[OCTO_COUNTER_SLOTS_USED];
+    stats->samples_skipped +=
+        (uint64_t{words[OCTO_COUNTER_SKIPPED_HI]} << 32) | words[OCTO_COUNTER_SKIPPED_LO];
     return Status::Ok();
   }
 
   // One work item per pixel, 2-D over the image in tiles of kTile x kTile (rounded up; the kernel
   // ignores work items outside the image): the rays of a work group are neighbours and read the
-  // same bricks. A band of rows starts at `first_row` (a multiple of kTile; the global offset
-  // keeps the kernel's pixel coordinates) and is `height` rows high.
-  Status Enqueue(cl_kernel kernel, int width, int height, int first_row = 0) const {
+  // same bricks.
+  Status Enqueue(cl_kernel kernel, int width, int height) const {
     if (width <= 0 || height <= 0) return Status::Ok();
     const auto round_up = [](int n) {
       return static_cast<size_t>((n + kTile - 1) / kTile * kTile);
@@ -187,9 +242,22 @@ struct VolumeRenderer::Impl {
         OCTO_CL(clGetKernelWorkGroupInfo(kernel, context->device_id(), CL_KERNEL_WORK_GROUP_SIZE,
                                          sizeof(max_group), &max_group, nullptr)));
     const bool tiles = max_group >= size_t{kTile} * kTile;
-    const size_t offset[2] = {0, static_cast<size_t>(first_row)};
-    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 2, offset, global,
+    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 2, nullptr, global,
                                           tiles ? local : nullptr, 0, nullptr, nullptr));
+  }
+
+  // A 1-D range of kTile^2 work items per tile; groups of one tile where the device allows.
+  Status EnqueueTiles(cl_kernel kernel, uint32_t tiles) const {
+    if (tiles == 0) return Status::Ok();
+    const size_t group = size_t{kTile} * kTile;
+    const size_t global = size_t{tiles} * group;
+    size_t max_group = 0;
+    OCTO_RETURN_IF_ERROR(
+        OCTO_CL(clGetKernelWorkGroupInfo(kernel, context->device_id(), CL_KERNEL_WORK_GROUP_SIZE,
+                                         sizeof(max_group), &max_group, nullptr)));
+    return OCTO_CL(clEnqueueNDRangeKernel(context->queue(), kernel, 1, nullptr, &global,
+                                          max_group >= group ? &group : nullptr, 0, nullptr,
+                                          nullptr));
   }
 
   // Reads the pass's requests and uploads them within `budget`; adds to stats.
@@ -219,25 +287,27 @@ struct Refinement::State {
   cl_mem ray_next = nullptr;     // uint per pixel: next sample index or OCTO_RAY_DONE.
   cl_mem ray_acc = nullptr;      // float4 per pixel (DVR).
   cl_mem ray_extreme = nullptr;  // float per pixel and enabled channel (MIP/MinIP).
+  // A sweep runs the tile list tiles_in (every tile in the first sweep) in slices, one per pass
+  // (FrameOptions::pass_target_ms; the whole list without a target), each appending its
+  // unfinished tiles to tiles_out after the earlier slices' ones; then the lists swap. A slice
+  // whose pass uploaded bricks and left rays unfinished runs again (its rays use the bricks
+  // before another slice's uploads could evict them), appending from the same index: its
+  // entries are overwritten, never duplicated. Progress is judged per sweep (a slice whose rays
+  // all wait for bricks may stand still while others advance).
+  cl_mem tiles_in = nullptr;     // The tiles this sweep runs (unless all_tiles).
+  cl_mem tiles_out = nullptr;    // Where its passes list those still unfinished.
+  cl_mem tile_stamps = nullptr;  // uint per tile: the pass (octree frame) that listed it last.
+  uint32_t tile_count = 0;       // Entries of tiles_in, or all tiles.
+  bool all_tiles = true;         // The first sweep runs every tile.
+  uint32_t slice_start = 0;      // The next slice: entries [slice_start, + slice_tiles).
+  uint32_t slice_tiles = 0;      // 0 = not cut yet.
+  int slice_runs = 0;            // Passes the slice has run.
+  uint32_t out_count = 0;        // Entries of tiles_out so far this sweep.
   int width = 0;
   int height = 0;
   uint64_t finished = 0;
   int stalled_passes = 0;          // Consecutive sweeps without progress.
   int stalled_without_upload = 0;  // Of which consecutive ones that uploaded nothing either.
-  // Row bands (FrameOptions::pass_target_ms): one pass runs one band, again while its passes
-  // upload bricks, then the next one with unfinished rays. Bands are cut in the first sweep, each
-  // as high as the measured speed allows (whole tiles; the first one a single tile row when no
-  // speed is known), and kept afterwards (their finished counts stay exact). A sweep visits every
-  // band with unfinished rays; progress is judged per sweep (a band whose rays all wait for
-  // bricks may stand still while others advance).
-  struct Band {
-    int first_row = 0;
-    int rows = 0;
-    uint64_t finished = 0;
-  };
-  std::vector<Band> bands;
-  int unvisited_row = 0;  // Rows from here on belong to no band yet.
-  size_t next_band = 0;
   uint64_t sweep_finished = 0, sweep_samples = 0, sweep_uploaded = 0;
   bool sweep_waiting = false, sweep_unavailable = false;
 };
@@ -271,7 +341,7 @@ Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeCont
   r->device_octree_ = device_octree;
   r->spacing_ = spacing_um;
   // The default mode's full-frame program is built now, so a broken kernel fails early.
-  OCTO_RETURN_IF_ERROR(r->impl_->Kernel(RenderMode::kDvr, false).status());
+  OCTO_RETURN_IF_ERROR(r->impl_->Kernel(RenderMode::kDvr, false, "").status());
   return r;
 }
 
@@ -302,6 +372,10 @@ FrameBufferSizes VolumeRenderer::BufferSizes(FrameMode mode, const RenderParams&
   at(FrameBuffer::kLut) = std::max<size_t>(LutFloats(params), 4) * sizeof(float);
   if (mode == FrameMode::kRefine) {
     at(FrameBuffer::kRayNext) = std::max<uint64_t>(pixels, 1) * sizeof(uint32_t);
+    const uint64_t tiles = std::max<uint64_t>(TileCount(width, height), 1) * sizeof(uint32_t);
+    at(FrameBuffer::kRayTilesA) = tiles;
+    at(FrameBuffer::kRayTilesB) = tiles;
+    at(FrameBuffer::kRayTileStamp) = tiles;
     if (params.mode == RenderMode::kDvr) {
       at(FrameBuffer::kRayAccumulator) = std::max<uint64_t>(pixels, 1) * 4 * sizeof(float);
     } else {
@@ -320,7 +394,6 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
   if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
   FrameStats local;
-  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false));
   // The pressure bias makes the frame coarser while the brick buffer cannot hold its working set.
   FrameOptions frame_options = options;
   ViewLod lod;
@@ -334,6 +407,7 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   OCTO_ASSIGN_OR_RETURN(FrameInputs in,
                         MakeFrameInputs(*impl_->context, camera, params, frame_options,
                                         octree.geometry(), spacing_, frame_buffers));
+  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(params.mode, false, in.variant));
   // Nodes first (construction may have moved on), then the frame's feedback.
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
@@ -341,9 +415,11 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
   const ClMem& image = frame_buffers.handle(FrameBuffer::kImage);
   uint32_t finished = 0;
   uint64_t samples = 0;
+  uint32_t next_tiles = 0;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, in, frame, image.get(), impl_->dummy.get(),
                                       impl_->dummy.get(), impl_->dummy.get(), camera.width(),
-                                      camera.height(), &finished, &samples, &local));
+                                      camera.height(), {}, &finished, &samples, &next_tiles,
+                                      &local));
   RenderImage out;
   out.width = camera.width();
   out.height = camera.height();
@@ -402,8 +478,6 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
   OCTO_RETURN_IF_ERROR(ValidateRenderParams(params, octree.geometry().channels()));
   if (!std::isfinite(options.lod_bias)) return InvalidArgumentError("lod bias must be finite");
   if (options.max_passes < 0) return InvalidArgumentError("max_passes must be >= 0");
-  // Build the program now: a pass should not pay for compilation.
-  OCTO_RETURN_IF_ERROR(impl_->Kernel(params.mode, true).status());
   std::unique_ptr<Refinement> r(new Refinement());
   r->state_ = std::make_unique<Refinement::State>();
   Refinement::State& s = *r->state_;
@@ -421,6 +495,8 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
       buffers->Reserve(BufferSizes(FrameMode::kRefine, params, s.width, s.height)));
   OCTO_ASSIGN_OR_RETURN(s.inputs, MakeFrameInputs(*impl_->context, camera, params, options,
                                                   octree.geometry(), spacing_, *buffers));
+  // Build the program now: a pass should not pay for compilation.
+  OCTO_RETURN_IF_ERROR(impl_->Kernel(params.mode, true, s.inputs.variant).status());
   const size_t pixels = static_cast<size_t>(s.width) * s.height;
   const ComputeContext& ctx = *impl_->context;
   // Ray state is initialised on the device (no host copies: a 16384^2 refinement must not
@@ -436,6 +512,17 @@ Result<std::unique_ptr<Refinement>> VolumeRenderer::StartRefinement(const Camera
   OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kImage, pixels, bg, 4 * sizeof(float), &s.image));
   const uint32_t zero = 0;
   OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kRayNext, pixels, &zero, sizeof(zero), &s.ray_next));
+  const uint64_t tiles = TileCount(s.width, s.height);
+  if (tiles > std::numeric_limits<uint32_t>::max()) {
+    return InvalidArgumentError("refinement: image too large (" + std::to_string(tiles) +
+                                " tiles)");
+  }
+  OCTO_RETURN_IF_ERROR(fill(FrameBuffer::kRayTileStamp, std::max<uint64_t>(tiles, 1), &zero,
+                            sizeof(zero), &s.tile_stamps));
+  s.tiles_in = buffers->get(FrameBuffer::kRayTilesA);
+  s.tiles_out = buffers->get(FrameBuffer::kRayTilesB);
+  s.tile_count = static_cast<uint32_t>(tiles);
+  s.all_tiles = true;
   if (params.mode == RenderMode::kDvr) {
     const float none = 0.0f;
     OCTO_RETURN_IF_ERROR(
@@ -463,46 +550,47 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   const size_t pixels = static_cast<size_t>(s.width) * s.height;
   if (s.finished >= pixels) return 1.0;
   DeviceOctree& octree = *device_octree_;
-  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(s.mode, true));
-  // This pass's band: the next cut one with unfinished rays, else a new one below them.
-  const uint64_t width = static_cast<uint64_t>(s.width);
-  auto unfinished = [&](const Refinement::State::Band& b) {
-    return b.finished < static_cast<uint64_t>(b.rows) * width;
-  };
-  while (s.next_band < s.bands.size() && !unfinished(s.bands[s.next_band])) ++s.next_band;
-  if (s.next_band == s.bands.size() && s.unvisited_row >= s.height) {
-    s.next_band = 0;  // A new sweep.
-    while (!unfinished(s.bands[s.next_band])) ++s.next_band;
-  }
-  if (s.next_band == s.bands.size()) {
-    int rows = s.height - s.unvisited_row;
+  OCTO_ASSIGN_OR_RETURN(cl_kernel kernel, impl_->Kernel(s.mode, true, s.inputs.variant));
+  // This pass's slice of the tile list: as many tiles as the measured speed allows within the
+  // pass target (at least one row of tiles; one row while no speed is known), else the rest.
+  if (s.slice_tiles == 0) {
+    const uint32_t rest = s.tile_count - s.slice_start;
+    double tiles = static_cast<double>(rest);
     if (s.options.pass_target_ms > 0) {
-      const double rays =
-          impl_->refine_ms_per_ray > 0 ? s.options.pass_target_ms / impl_->refine_ms_per_ray : 0.0;
-      const double tiles = std::floor(rays / static_cast<double>(width) / kTile);
-      rows = static_cast<int>(std::clamp(tiles * kTile, double{kTile}, static_cast<double>(rows)));
+      const uint32_t row = static_cast<uint32_t>(TileCount(s.width, kTile));
+      const double fit = impl_->refine_ms_per_tile > 0
+                             ? std::floor(s.options.pass_target_ms / impl_->refine_ms_per_tile)
+                             : 0.0;
+      tiles = std::clamp(fit, static_cast<double>(std::min(row, rest)), tiles);
     }
-    s.bands.push_back({s.unvisited_row, rows, 0});
-    s.unvisited_row += rows;
+    s.slice_tiles = static_cast<uint32_t>(tiles);
+    s.slice_runs = 0;
   }
-  Refinement::State::Band& band = s.bands[s.next_band];
-  const int first_row = band.first_row;
-  const int rows = band.rows;
   OCTO_RETURN_IF_ERROR(octree.Sync());
   OCTO_ASSIGN_OR_RETURN(const uint32_t frame, octree.BeginFrame());
   uint32_t finished = 0;
   uint64_t samples = 0;
+  uint32_t next_tiles = 0;
+  const Impl::PassTiles tiles{.refine = true,
+                              .tiles_in = s.tiles_in,
+                              .tiles_out = s.tiles_out,
+                              .stamps = s.tile_stamps,
+                              .offset = s.slice_start,
+                              .count = s.slice_tiles,
+                              .all = s.all_tiles,
+                              .out_start = s.out_count};
   const double kernel_ms_before = stats.ms_kernel;
   OCTO_RETURN_IF_ERROR(impl_->RunPass(octree, kernel, s.inputs, frame, s.image, s.ray_next,
-                                      s.ray_acc, s.ray_extreme, s.width, rows, &finished, &samples,
-                                      &stats, first_row));
-  // The speed of unfinished rays, for the bands cut later (a moving average).
-  const uint64_t ran = static_cast<uint64_t>(rows) * width - band.finished;
-  if (ran > 0 && samples > 0) {
-    const double ms_per_ray = (stats.ms_kernel - kernel_ms_before) / static_cast<double>(ran);
-    impl_->refine_ms_per_ray = impl_->refine_ms_per_ray > 0
-                                   ? 0.5 * impl_->refine_ms_per_ray + 0.5 * ms_per_ray
-                                   : ms_per_ray;
+                                      s.ray_acc, s.ray_extreme, s.width, s.height, tiles, &finished,
+                                      &samples, &next_tiles, &stats));
+  ++s.slice_runs;
+  // The speed of listed tiles, for the slices cut later (a moving average).
+  if (s.slice_tiles > 0 && samples > 0) {
+    const double ms_per_tile =
+        (stats.ms_kernel - kernel_ms_before) / static_cast<double>(s.slice_tiles);
+    impl_->refine_ms_per_tile = impl_->refine_ms_per_tile > 0
+                                    ? 0.5 * impl_->refine_ms_per_tile + 0.5 * ms_per_tile
+                                    : ms_per_tile;
   }
   // Paused rays hold no brick between passes: protect nothing but what this upload brings in
   // (the upload manager never evicts a brick it uploaded in the same call).
@@ -510,7 +598,6 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   budget.protect_frame = frame + 1;
   UploadStats upload;
   OCTO_RETURN_IF_ERROR(impl_->Feedback(octree, budget, &stats, &upload));
-  band.finished += finished;
   s.finished += finished;
   stats.passes += 1;
   stats.samples += samples;
@@ -519,20 +606,34 @@ Result<double> VolumeRenderer::RefinePass(Refinement& refinement) {
   stats.pass_finished.push_back(fraction);
   stats.final = s.finished >= pixels;
   stats.ms_total += MsSince(start);
-  // The sweep so far; it ends after the last band with unfinished rays.
+  // The sweep so far; it ends after its last slice.
   s.sweep_finished += finished;
   s.sweep_samples += samples;
   s.sweep_uploaded += upload.uploaded;
   // Bricks that wait for their page (non-blocking reads) or for a free slot will come.
   s.sweep_waiting = s.sweep_waiting || upload.unavailable > 0 || upload.deferred > 0;
   s.sweep_unavailable = s.sweep_unavailable || upload.unavailable > 0;
-  // A band whose pass brought bricks in runs again next (its rays use them before another band's
-  // uploads could evict them: with a small brick buffer, bands taking turns would thrash).
-  if (upload.uploaded > 0 && unfinished(band)) return fraction;
-  ++s.next_band;
-  while (s.next_band < s.bands.size() && !unfinished(s.bands[s.next_band])) ++s.next_band;
-  if (stats.final || s.next_band < s.bands.size() || s.unvisited_row < s.height) return fraction;
-  s.next_band = 0;
+  if (stats.final) return fraction;
+  // A slice whose pass brought bricks in and left tiles unfinished runs again next, appending
+  // where it did (its rays use the bricks before another slice's uploads could evict them: with a
+  // small brick buffer, slices taking turns would thrash); only while it advances, after its
+  // first pass. A slice that is the whole list starts the next sweep instead: the same tiles,
+  // less those that finished.
+  const bool whole_list = s.slice_start == 0 && s.slice_tiles == s.tile_count;
+  if (upload.uploaded > 0 && next_tiles > s.out_count && !whole_list &&
+      (s.slice_runs == 1 || finished > 0 || samples > 0)) {
+    return fraction;
+  }
+  s.out_count = next_tiles;
+  s.slice_start += s.slice_tiles;
+  s.slice_tiles = 0;
+  if (s.slice_start < s.tile_count) return fraction;
+  // The end of the sweep: the next one runs the tiles left unfinished.
+  std::swap(s.tiles_in, s.tiles_out);
+  s.tile_count = s.out_count;
+  s.all_tiles = false;
+  s.slice_start = 0;
+  s.out_count = 0;
   // Every unfinished ray waits for a brick: a sweep that neither advanced a ray nor uploaded
   // anything, with nothing left waiting, will never progress (nor will endlessly many that keep
   // uploading in vain). Sweeps that wait for the disk do not count: the disk sets their pace.

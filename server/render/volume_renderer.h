@@ -9,10 +9,16 @@
 // channel is read at its transformed position. The level of detail is chosen PER SAMPLE: the pixel
 // footprint at the sample's distance (constant for orthographic cameras) in level-0 voxels of the
 // finest spacing, level = clamp(floor(log2(footprint) + lod_bias), 0, root level), so the screen's
-// resolution decides and nothing finer is fetched. Empty space: a sample in a brickless leaf node
-// (homogeneous or never written) whose averages give zero opacity (DVR) or cannot raise any
-// channel's running maximum (MIP; lower the minimum for MinIP) skips to the node's exit (only when
-// no enabled channel has a transform that moves it, since then all channels read the same node).
+// resolution decides and nothing finer is fetched. Empty space (only when no enabled channel has a
+// transform that moves it, since then all channels read the same node): a ray skips the coarsest
+// node around it whose subtree's per-channel value range (in the node buffer) maps to zero opacity
+// in every channel (DVR) or cannot raise any channel's running maximum (MIP; lower the minimum for
+// MinIP), from its box shrunk by half a voxel of the node's level to its exit; and a sample in a
+// brickless leaf node (homogeneous or never written) whose averages cannot contribute skips to
+// the leaf's exit. Images are identical with skipping off once the bricks are resident
+// (docs/rendering.md, "Empty-space skipping"); FrameStats::samples_skipped counts the jumps.
+// Programs are specialised per frame's channel variant (enabled channels, transforms) at build
+// time and cached.
 //
 // Modes:
 //  * Full frame: a sample whose wanted node (the level the screen needs) is not resident uses the
@@ -21,7 +27,10 @@
 //    uploaded within the frame's budget after the image is read, for the next frame.
 //  * Refinement: the ray state (next sample index, accumulated colour / per-channel extremum)
 //    is kept on the device between passes; a ray pauses at the first sample whose wanted brick
-//    is missing (DVR and MIP alike) and resumes there in the next pass, after the upload.
+//    is missing (DVR and MIP alike) and resumes there in the next pass, after the upload. Passes
+//    run only the 8x8 tiles that still have unfinished rays: a sweep runs a tile list (the first
+//    one all tiles) in slices (FrameOptions::pass_target_ms; one slice without a target), each
+//    pass appending on the device the tiles it left unfinished to the next sweep's list.
 //    Each pass reports the fraction of finished rays. Because only the bricks of the ray fronts
 //    are needed in one pass, working sets larger than the brick buffer finish too (a pass that
 //    advances no ray with everything requested resident is an internal error, never a hang).
@@ -92,12 +101,12 @@ struct FrameOptions {
   // Which view this frame belongs to (e.g. the render service's view id): the adaptive biases
   // of full frames (brick-buffer pressure, frame-time target) are tracked per view.
   uint64_t view = 0;
-  // Refinement: a kernel-time target per pass in ms (0 = every pass covers the whole image).
-  // Passes then cover bands of rows (whole 8-row tiles, cut in the first sweep from the
-  // renderer's measured refinement speed), band after band (a band runs again while its passes
-  // upload bricks), skipping bands whose rays all finished: a refinement of a huge image (a 4K
-  // screenshot) advances in short passes, so the render service can run other views' frames
-  // between them. The image is the same.
+  // Refinement: a kernel-time target per pass in ms (0 = every pass runs every tile with
+  // unfinished rays). Passes then run slices of that tile list (as many tiles as the renderer's
+  // measured refinement speed allows, at least one row of tiles), slice after slice (a slice runs
+  // again while its passes upload bricks and leave rays unfinished): a refinement of a huge
+  // image (a 4K screenshot) advances in short passes, so the render service can run other views'
+  // frames between them. The image is the same.
   double pass_target_ms = 0;
   // Full frames: a kernel-time target in ms (0 = none). While frames take longer, the view's
   // frames get coarser (an extra fractional lod bias, see the file comment); when they are
@@ -107,10 +116,12 @@ struct FrameOptions {
 
 struct FrameStats {
   double ms_total = 0;
-  double ms_kernel = 0;   // Kernel time (enqueue to finish).
-  double ms_upload = 0;   // Brick uploads.
-  int passes = 0;         // Kernel passes.
-  uint64_t samples = 0;   // Channel samples taken (trilinear reads or averages), all passes.
+  double ms_kernel = 0;  // Kernel time (enqueue to finish).
+  double ms_upload = 0;  // Brick uploads.
+  int passes = 0;        // Kernel passes.
+  uint64_t samples = 0;  // Channel samples taken (trilinear reads or averages), all passes.
+  // Channel samples empty-space skipping jumped over (brickless leaves, inert value ranges).
+  uint64_t samples_skipped = 0;
   uint64_t requests = 0;  // Node requests read back, all passes.
   uint64_t bricks_uploaded = 0;
   // Bricks not uploaded because their page was not in RAM (non-blocking brick reads), all passes.

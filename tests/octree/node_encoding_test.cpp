@@ -4,6 +4,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -20,20 +21,23 @@ BrickGeometry Make(Vec3 size, Vec3 brick, int channels = 1) {
 }
 
 TEST(NodeEncodingTest, WordsPerNode) {
-  EXPECT_EQ(NodeWords(1), 3);
-  EXPECT_EQ(NodeWords(2), 3);
-  EXPECT_EQ(NodeWords(3), 4);
-  EXPECT_EQ(NodeWords(4), 4);
-  EXPECT_EQ(NodeWords(5), 5);
-  EXPECT_EQ(NodeWords(kMaxChannels), 34);
+  EXPECT_EQ(NodeWords(1), 4);
+  EXPECT_EQ(NodeWords(2), 5);
+  EXPECT_EQ(NodeWords(3), 7);
+  EXPECT_EQ(NodeWords(4), 8);
+  EXPECT_EQ(NodeWords(5), 10);
+  EXPECT_EQ(NodeWords(kMaxChannels), 98);
+  EXPECT_EQ(NodeRangeWord(1), 3);
+  EXPECT_EQ(NodeRangeWord(3), 4);
+  EXPECT_EQ(NodeRangeWord(4), 4);
   EXPECT_EQ(ChildNodeId(1, 0), 8u);
   EXPECT_EQ(ChildNodeId(2, 7), 23u);
   EXPECT_EQ(ChildNodeId(kMaxChildGroup, 7), (uint64_t{1} << 33) - 1);
-  EXPECT_EQ(NodeWordOffset(23, 3), 23u * 4u);
+  EXPECT_EQ(NodeWordOffset(23, 3), 23u * 7u);
 }
 
 TEST(NodeEncodingTest, BitPositionsAreExact) {
-  std::vector<uint32_t> w(4, 0xdeadbeef);
+  std::vector<uint32_t> w(7, 0xdeadbeef);
   DeviceNode node{.in_buffer = true,
                   .has_brick = true,
                   .child_group = 0x2aaaaaaa,
@@ -44,6 +48,17 @@ TEST(NodeEncodingTest, BitPositionsAreExact) {
   EXPECT_EQ(w[1], 0x89abcdefu);
   EXPECT_EQ(w[2], 0xabcd1234u);  // Channel 0 low half, channel 1 high half.
   EXPECT_EQ(w[3], 0x00000f0fu);  // Channel 2 low half; the unused high half is 0.
+  // No ranges given: every channel's range is the whole stored range (nothing skippable).
+  EXPECT_EQ(w[4], 0xffff0000u);
+  EXPECT_EQ(w[5], 0xffff0000u);
+  EXPECT_EQ(w[6], 0xffff0000u);
+  // Ranges: min in the low half, max in the high half, one word per channel.
+  node.range_min = {1, 0x0100, 0xfffe};
+  node.range_max = {0x00ff, 0x1234, 0xffff};
+  ASSERT_TRUE(EncodeNode(node, w).ok());
+  EXPECT_EQ(w[4], 0x00ff0001u);
+  EXPECT_EQ(w[5], 0x12340100u);
+  EXPECT_EQ(w[6], 0xfffffffeu);
 
   // Only has_brick: bit 30 alone; not in the buffer, so the slot is written as 0.
   node = {.has_brick = true, .brick_slot = 77, .averages = {1, 2, 3}};
@@ -78,10 +93,13 @@ TEST(NodeEncodingTest, DocumentedExample) {
                           .has_brick = true,
                           .child_group = 5,
                           .brick_slot = 42,
+                          .range_min = {90, 1000, 65535},
+                          .range_max = {120, 3000, 65535},
                           .averages = {100, 2000, 65535}},
                          w)
                   .ok());
-  EXPECT_EQ(w, (std::vector<uint32_t>{0xC0000005u, 0x0000002Au, 0x07D00064u, 0x0000FFFFu}));
+  EXPECT_EQ(w, (std::vector<uint32_t>{0xC0000005u, 0x0000002Au, 0x07D00064u, 0x0000FFFFu,
+                                      0x0078005Au, 0x0BB803E8u, 0xFFFFFFFFu}));
 }
 
 TEST(NodeEncodingTest, RoundTripsRandomNodes) {
@@ -100,6 +118,10 @@ TEST(NodeEncodingTest, RoundTripsRandomNodes) {
         node.averages.push_back(static_cast<uint16_t>(trial == 0   ? 0
                                                       : trial == 1 ? 65535
                                                                    : u16(rng)));
+        const int a = u16(rng);
+        const int b = u16(rng);
+        node.range_min.push_back(static_cast<uint16_t>(std::min(a, b)));
+        node.range_max.push_back(static_cast<uint16_t>(std::max(a, b)));
       }
       std::vector<uint32_t> words(NodeWords(channels));
       ASSERT_TRUE(EncodeNode(node, words).ok());
@@ -109,7 +131,7 @@ TEST(NodeEncodingTest, RoundTripsRandomNodes) {
 }
 
 TEST(NodeEncodingTest, RejectsUnencodableNodesWithoutWriting) {
-  std::vector<uint32_t> words(3, 0x5a5a5a5a);
+  std::vector<uint32_t> words(4, 0x5a5a5a5a);
   const std::vector<uint32_t> untouched = words;
 
   Status s = EncodeNode({.child_group = kMaxChildGroup + 1, .averages = {1}}, words);
@@ -121,9 +143,13 @@ TEST(NodeEncodingTest, RejectsUnencodableNodesWithoutWriting) {
   EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
   s = EncodeNode({.averages = {}}, words);
   EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
-  s = EncodeNode({.averages = {1, 2, 3}}, words);  // 3 channels need 4 words.
+  s = EncodeNode({.averages = {1, 2, 3}}, words);  // 3 channels need 7 words.
   EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
-  EXPECT_NE(s.message().find("need 4 words, got 3"), std::string::npos) << s.message();
+  EXPECT_NE(s.message().find("need 7 words, got 4"), std::string::npos) << s.message();
+  s = EncodeNode({.range_min = {5}, .range_max = {4}, .averages = {1}}, words);
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
+  s = EncodeNode({.range_min = {5}, .averages = {1}}, words);
+  EXPECT_EQ(s.code(), StatusCode::kInvalidArgument);
   EXPECT_EQ(words, untouched);
 }
 

@@ -162,6 +162,8 @@ std::vector<uint32_t> ExpectedNodes(const Octree& tree, uint64_t capacity,
     }
     for (const auto& c : n.channels) {
       d.averages.push_back(octree::QuantizeAverage(c.avg, tree.geometry().bytes_per_sample()));
+      d.range_min.push_back(c.subtree_min);
+      d.range_max.push_back(c.subtree_max);
     }
     const Status written = octree::WriteNode(out, n.id, d);
     if (!strict && !written.ok()) return {};

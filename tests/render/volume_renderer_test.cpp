@@ -23,6 +23,7 @@
 #include "cl_test_env.h"
 #include "render/device_octree.h"
 #include "render/reference_renderer.h"
+#include "render/render_frame.h"
 #include "render_fixture.h"
 #include "volume_renderer_rig.h"
 
@@ -80,7 +81,9 @@ TEST(VolumeRendererTest, ContractMipEqualsColumnMaxAlongZ) {
       ASSERT_EQ(px[3], 1.0f);
     }
   }
-  EXPECT_EQ(stats.samples, 40u * 24 * 20);
+  // Every sample position is either sampled or skipped (MIP skips nodes whose maximum the ray
+  // already reached).
+  EXPECT_EQ(stats.samples + stats.samples_skipped, 40u * 24 * 20);
 }
 
 struct ViewCase {
@@ -340,10 +343,12 @@ TEST(VolumeRendererTest, WorkingSetLargerThanBrickBuffer) {
   }
 }
 
-// Refinement passes over bands of rows (FrameOptions::pass_target_ms, as the render service
-// runs them so that huge refinements yield to other views' frames): the same image as passes
-// over the whole image, also when the bricks do not all fit (rays of later bands wait while
-// earlier bands' bricks are evicted) and with a last band shorter than the others.
+// Refinement passes over slices of the tile list (FrameOptions::pass_target_ms, as the render
+// service runs them so that huge refinements yield to other views' frames): the same image as
+// passes over the whole list, also when the bricks do not all fit (rays of later slices wait
+// while earlier slices' bricks are evicted; slices that uploaded re-run and rewrite their list
+// entries: a duplicated entry would double-count finished rays) and with a last tile row shorter
+// than the others.
 TEST(VolumeRendererTest, RefinementInRowBandsGivesTheSameImage) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   const SceneSpec spec = NoiseSpec({32, 32, 32}, 2, {8, 8, 8});
@@ -354,7 +359,7 @@ TEST(VolumeRendererTest, RefinementInRowBandsGivesTheSameImage) {
   auto small = MakeRig(spec, tight);
   ASSERT_NE(small, nullptr);
   FrameOptions banded = Refine();
-  banded.pass_target_ms = 1e-9;  // As short as possible: one 8-row tile per pass.
+  banded.pass_target_ms = 1e-9;  // As short as possible: one row of tiles per pass.
   for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
     RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
     params.channels[0].opacity_scale = 0.05;
@@ -363,19 +368,20 @@ TEST(VolumeRendererTest, RefinementInRowBandsGivesTheSameImage) {
       FrameStats whole_stats, banded_stats, small_stats;
       const RenderImage whole = Gpu(*roomy, camera, params, Refine(), &whole_stats);
       const RenderImage bands = Gpu(*roomy, camera, params, banded, &banded_stats);
-      // (Band heights come from the renderer's measured speed: the whole-image refinements
-      // before measure it.)
+      // (Slice sizes come from the renderer's measured speed: the whole-list refinements before
+      // measure it.)
       const RenderImage tight_whole = Gpu(*small, camera, params, Refine());
       const RenderImage tight_bands = Gpu(*small, camera, params, banded, &small_stats);
       EXPECT_TRUE(banded_stats.final && small_stats.final);
       EXPECT_GE(small_stats.passes, 6);
       EXPECT_LE(CompareImages(whole, tight_whole).max_abs, 1e-6) << RenderModeName(mode);
-      // Six bands (five of 8 rows and one of 4), at least one pass each.
+      // Six tile rows of 5 tiles (five of 8 pixel rows and one of 4), at least one pass each.
       EXPECT_GE(banded_stats.passes, 6);
       EXPECT_GT(banded_stats.passes, whole_stats.passes);
       EXPECT_LE(CompareImages(whole, bands).max_abs, 1e-6) << RenderModeName(mode);
       EXPECT_LE(CompareImages(whole, tight_bands).max_abs, 1e-6) << RenderModeName(mode);
       EXPECT_DOUBLE_EQ(banded_stats.finished_fraction, 1.0);
+      EXPECT_DOUBLE_EQ(small_stats.finished_fraction, 1.0);
     }
   }
 }
@@ -461,6 +467,137 @@ TEST(VolumeRendererTest, EmptySpaceSkippingChangesNothingButSamples) {
                                  << Describe(d);
       EXPECT_GT(d.psnr, 50) << RenderModeName(mode) << " " << ProjectionName(p);
     }
+  }
+}
+
+// Value-range skipping (issue 12): a LOSSLESS scene where every brick holds noise (no brickless
+// node, so the old leaf skipping never applies) — dim noise around bright blobs, two channels.
+// DVR windows / a LUT make the dim noise fully transparent, MIP passes through dim nodes after a
+// blob, MinIP through bright ones after the background: inert nodes are skipped. The images must
+// be bit-identical with skipping off (refinement and converged full frames), equal the CPU
+// reference at level 0, and the skipped-sample counter proves the skipping happened.
+TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {48, 40, 32};
+  spec.brick = {8, 8, 8};
+  spec.channels = 2;
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    const auto blob = [&](double cx, double cy, double cz, double r) {
+      return (x - cx) * (x - cx) + (y - cy) * (y - cy) + (z - cz) * (z - cz) < r * r;
+    };
+    const bool bright = c == 0 ? blob(12, 12, 10, 6) || blob(34, 28, 22, 7) : blob(30, 14, 16, 8);
+    if (bright) return static_cast<uint16_t>(20000 + Hash(x, y, z, c) % 40000);
+    // Dim noise inside a black shell three voxels thick (every ray enters through black, so
+    // MinIP reaches every node's minimum early).
+    const auto in_shell = [](int64_t v, int64_t n) { return v < 3 || v >= n - 3; };
+    if (in_shell(x, 48) || in_shell(y, 40) || in_shell(z, 32)) return 0;
+    const uint32_t h = Hash(x, y, z, c);
+    return static_cast<uint16_t>(c == 0 ? h % 1000 : 100 + h % 500);
+  };
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  // Every node owns a brick: only value ranges can skip here.
+  ASSERT_EQ(rig->scene->tree->stats().homogeneous_nodes, 0u);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    if (mode == RenderMode::kDvr) {
+      // Channel 0: a window starting above the noise; channel 1: a LUT transparent below entry
+      // 20 (about 5000 stored).
+      params.channels[0].window = 30000;
+      params.channels[0].level = 1000 + 15000;
+      params.channels[0].opacity_scale = 0.2;
+      std::array<volume::Rgba, kLutEntries> lut;
+      for (int i = 0; i < kLutEntries; ++i) {
+        lut[i] = {static_cast<uint8_t>(i), 80, static_cast<uint8_t>(255 - i),
+                  static_cast<uint8_t>(i < 20 ? 0 : i / 4)};
+      }
+      params.channels[1].lut = lut;
+    }
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      const std::string what =
+          std::string(RenderModeName(mode)) + " " + std::string(ProjectionName(p));
+      const Camera camera = Standard(*rig, StandardView::kIso, p, 48, 48);
+      FrameOptions with = Refine();
+      with.lod_bias = -4;  // Level 0 everywhere: comparable with the reference.
+      FrameOptions without = with;
+      without.skip_empty_space = false;
+      FrameStats with_stats, without_stats;
+      const RenderImage a = Gpu(*rig, camera, params, with, &with_stats);
+      const RenderImage b = Gpu(*rig, camera, params, without, &without_stats);
+      EXPECT_EQ(a.rgba, b.rgba) << what;
+      // DVR and MinIP skip most of the noise; MIP only behind rays that already crossed a
+      // blob of both channels' brightness.
+      EXPECT_GT(with_stats.samples_skipped,
+                mode == RenderMode::kMip ? uint64_t{0} : with_stats.samples / 4)
+          << what;
+      EXPECT_LT(with_stats.samples, without_stats.samples) << what;
+      EXPECT_EQ(without_stats.samples_skipped, 0u) << what;
+      const ImageDiff d = CompareImages(a, Reference(*rig, camera, params));
+      EXPECT_LE(d.max_abs, kTol) << what << ": " << Describe(d);
+
+      // Full frames, once everything they need is resident, are identical too.
+      FrameOptions full;
+      full.lod_bias = -4;
+      full.upload.max_ms = 1e9;
+      FrameOptions full_off = full;
+      full_off.skip_empty_space = false;
+      FrameStats fs;
+      for (int i = 0; i < 6 && !fs.final; ++i) Gpu(*rig, camera, params, full_off, &fs);
+      ASSERT_TRUE(fs.final) << what;
+      FrameStats on_stats;
+      const RenderImage fa = Gpu(*rig, camera, params, full, &on_stats);
+      const RenderImage fb = Gpu(*rig, camera, params, full_off);
+      EXPECT_EQ(fa.rgba, fb.rgba) << what;
+      EXPECT_EQ(fa.rgba, a.rgba) << what;
+      EXPECT_GT(on_stats.samples_skipped, 0u) << what;
+    }
+  }
+}
+
+// DVR skipping's transfer-function bounds (render_frame.h, visible_lo / visible_hi) against the
+// reference's own transfer function in double: every stored value outside the bounds has alpha
+// exactly 0, for plain ramps, gamma, LUTs with transparent ends, and opacity 0.
+TEST(VolumeRendererTest, VisibleRangeBoundsAreConservative) {
+  std::vector<ChannelParams> cases;
+  ChannelParams ramp;
+  ramp.window = 20000;
+  ramp.level = 15000;
+  cases.push_back(ramp);
+  ramp.gamma = 2.5;
+  cases.push_back(ramp);
+  ChannelParams lut_channel;
+  lut_channel.window = 50000;
+  lut_channel.level = 30000;
+  lut_channel.gamma = 0.7;
+  std::array<volume::Rgba, kLutEntries> lut;
+  for (int i = 0; i < kLutEntries; ++i) {
+    lut[i] = {255, 255, 255, static_cast<uint8_t>(i >= 30 && i <= 200 ? 100 : 0)};
+  }
+  lut_channel.lut = lut;
+  cases.push_back(lut_channel);
+  ChannelParams invisible;
+  invisible.opacity_scale = 0;
+  cases.push_back(invisible);
+  for (size_t k = 0; k < cases.size(); ++k) {
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kDvr);
+    params.channels[0] = cases[k];
+    Result<Camera> camera = Camera::Standard(StandardView::kZ, Projection::kOrthographic,
+                                             Box3{{0, 0, 0}, {8, 8, 8}}, 4, 4);
+    ASSERT_TRUE(camera.ok());
+    const PackedFrame packed = PackRenderFrame(*camera, params, 0, true, {8, 8, 8}, {1, 1, 1});
+    const OctoChannelParams& ch = packed.channels[0];
+    if (cases[k].opacity_scale > 0) {
+      EXPECT_LT(ch.visible_lo, ch.visible_hi) << k;
+    }
+    int invisible_values = 0;
+    for (int v = 0; v <= 65535; ++v) {
+      if (!(v <= ch.visible_lo || v >= ch.visible_hi)) continue;
+      ++invisible_values;
+      const double alpha = TransferFunction(cases[k], WindowedValue(cases[k], v))[3];
+      ASSERT_EQ(alpha, 0.0) << "case " << k << " value " << v;
+    }
+    EXPECT_GT(invisible_values, 1000) << k;
   }
 }
 
