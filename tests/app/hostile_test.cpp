@@ -24,7 +24,11 @@ namespace octoscope::app {
 namespace {
 
 using namespace testing::serve_fixture;  // NOLINT
+using testing::Ack;
+using testing::DecodeFrame;
 using testing::Frame;
+using testing::ReadEvent;
+using testing::ReadFrameUntil;
 using testing::kToken;
 using testing::TestVolume;
 

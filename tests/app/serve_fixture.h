@@ -114,60 +114,6 @@ class ServeFixture : public ::testing::Test {
     return error.empty();
   }
 
-  // Reads until a text event of `type`; frames on the way are acknowledged and kept in *frames.
-  static std::optional<json> ReadEvent(WsClient& ws, const std::string& type,
-                                       std::vector<Frame>* frames = nullptr,
-                                       seconds timeout = seconds(30)) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      auto m = ws.Read(timeout);
-      if (!m.ok) return std::nullopt;
-      if (m.binary) {
-        auto frame = DecodeFrame(m.data);
-        if (frame) {
-          Ack(ws, frame->header.frame_id);
-          if (frames) frames->push_back(std::move(*frame));
-        }
-        continue;
-      }
-      json event = json::parse(m.data);
-      if (event.value("type", "") == type) return event;
-    }
-    return std::nullopt;
-  }
-
-  // Reads frames (acknowledging them) until `done(frame)` holds; events are skipped.
-  static std::optional<Frame> ReadFrameUntil(WsClient& ws,
-                                             const std::function<bool(const Frame&)>& done,
-                                             seconds timeout = seconds(60)) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      auto m = ws.Read(timeout);
-      if (!m.ok) return std::nullopt;
-      if (!m.binary) continue;
-      auto frame = DecodeFrame(m.data);
-      EXPECT_TRUE(frame.has_value());
-      if (!frame) return std::nullopt;
-      Ack(ws, frame->header.frame_id);
-      if (done(*frame)) return frame;
-    }
-    return std::nullopt;
-  }
-
-  static std::optional<Frame> DecodeFrame(const std::string& data) {
-    std::span<const uint8_t> bytes(reinterpret_cast<const uint8_t*>(data.data()), data.size());
-    auto header = protocol::DecodeFrameHeader(bytes);
-    EXPECT_TRUE(header.ok()) << header.status().ToString();
-    if (!header.ok()) return std::nullopt;
-    Frame f{*header,
-            std::vector<uint8_t>(bytes.begin() + protocol::kFrameHeaderBytes, bytes.end())};
-    return f;
-  }
-
-  static void Ack(WsClient& ws, uint64_t id) {
-    ws.Send(json{{"type", "ack"}, {"frame", id}}.dump());
-  }
-
   // Opens `id` with an orthographic z camera that maps pixel (x, y) onto voxel column (x, y),
   // channel 0 alone in MIP with `window` over [0, window_hi], lossless finals, the 3-D viewport
   // at the volume's size.
