@@ -96,7 +96,7 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
     const float dt = f.step;
     const uint segments = (uint)fmax(1.0f, ceil((len - rounding) / dt));
 #if OCTO_MODE == OCTO_MODE_DVR
-    const float ratio_full = dt / vpu * f.inv_reference;
+    const OctoRatio ratio_full = OctoOpacityRatio(dt / vpu * f.inv_reference);
 #endif
     for (uint j = 0u; j < segments; ++j) {
       const float start = (float)j * dt;
@@ -105,7 +105,8 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
       /* Channels without a transform share one footprint. */
       const OctoDenseFootprint shared = OctoDenseFootprintAt(p, n, channels_stored);
 #if OCTO_MODE == OCTO_MODE_DVR
-      const float ratio = j + 1u < segments ? ratio_full : seg / vpu * f.inv_reference;
+      const OctoRatio ratio =
+          j + 1u < segments ? ratio_full : OctoOpacityRatio(seg / vpu * f.inv_reference);
       float3 mix_rgb = (float3)(0.0f);
       float transmit = 1.0f;
 #endif

@@ -14,6 +14,9 @@
  * Brick buffer: uint16 samples; the brick in slot s starts at sample s * OctoBrickSamples(g) and
  * holds the node's interior plus a one-voxel apron, (bs + 2) voxels per axis, channels
  * interleaved, x fastest: ((z * sy + y) * sx + x) * C + c (brick_geometry.h).
+ * Cell ranges (server/render/cell_ranges.h): slot s's words start at s * OctoCellWords(g); cell
+ * (cx, cy, cz) of OCTO_CELL_SIZE^3 interior voxels, x fastest, holds word (cell * C + c) per
+ * channel: min bits 0..15, max bits 16..31 over the stored voxels its trilinear samples read.
  */
 #ifndef OCTOSCOPE_KERNELS_NODE_FORMAT_H_
 #define OCTOSCOPE_KERNELS_NODE_FORMAT_H_
@@ -32,6 +35,8 @@
 #define OCTO_OCTANT_Y 2
 #define OCTO_OCTANT_Z 4
 #define OCTO_CHILDREN_PER_GROUP 8
+/* Interior voxels per axis of a cell of the cell ranges. */
+#define OCTO_CELL_SIZE 8
 
 /* The tree's geometry as a kernel argument (passed by value; only 32-bit ints, so the layout is
  * the same in C++ and OpenCL C: 32 bytes, no padding). Mirrors octree::BrickGeometry. */
@@ -78,6 +83,18 @@ uint2 OctoNodeRange(__global const uint* nodes, ulong node, OctoTreeGeometry g, 
 ulong OctoBrickSamples(OctoTreeGeometry g) {
   return (ulong)(g.brick_size[0] + 2) * (ulong)(g.brick_size[1] + 2) *
          (ulong)(g.brick_size[2] + 2) * (ulong)g.channels;
+}
+
+/* Cells per axis of a brick: ceil(bs / OCTO_CELL_SIZE). */
+int3 OctoCellsPerAxis(OctoTreeGeometry g) {
+  const int3 bs = (int3)(g.brick_size[0], g.brick_size[1], g.brick_size[2]);
+  return (bs + OCTO_CELL_SIZE - 1) / OCTO_CELL_SIZE;
+}
+
+/* Cell range words of one slot: cells times channels. */
+ulong OctoCellWords(OctoTreeGeometry g) {
+  const int3 n = OctoCellsPerAxis(g);
+  return (ulong)n.x * (ulong)n.y * (ulong)n.z * (ulong)g.channels;
 }
 
 #endif /* __OPENCL_VERSION__ */

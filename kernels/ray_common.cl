@@ -116,11 +116,42 @@ float4 OctoTransfer(__global const OctoChannelParams* ch, __global const float4*
   return rgba;
 }
 
-/* CorrectOpacity of render_params.h: 1 - (1 - a)^ratio, precise for tiny alphas. */
-float OctoCorrectOpacity(float a, float ratio) {
+/* A segment's opacity-correction ratio (its length over the reference spacing), prepared once
+ * per sample for all its channels: `squarings` = s >= 0 when the ratio is 2^s (within a few ulps:
+ * full segments of level s at the reference step), else -1. */
+typedef struct OctoRatio {
+  float ratio;
+  int squarings;
+} OctoRatio;
+
+OctoRatio OctoOpacityRatio(float ratio) {
+  OctoRatio r;
+  r.ratio = ratio;
+  r.squarings = -1;
+  int e = 0;
+  const float m = frexp(ratio, &e); /* ratio = m * 2^e, m in [0.5, 1). */
+  const float tolerance = 4.0f * FLT_EPSILON;
+  if (m - 0.5f <= tolerance) {
+    r.squarings = e - 1;
+  } else if (1.0f - m <= tolerance) {
+    r.squarings = e; /* Just below 2^e. */
+  }
+  if (r.squarings > 24) r.squarings = -1;
+  return r;
+}
+
+/* CorrectOpacity of render_params.h: 1 - (1 - a)^ratio, precise for tiny alphas. A ratio of 2^s
+ * is s squarings of the transparency, written b <- 1 - (1 - b)^2 = b (2 - b) so tiny alphas keep
+ * their precision: a few multiplies instead of log1p and expm1 (the DVR inner loop's dearest
+ * part). */
+float OctoCorrectOpacity(float a, OctoRatio r) {
   if (a <= 0.0f) return 0.0f;
   if (a >= 1.0f) return 1.0f;
-  return -expm1(ratio * log1p(-a));
+  if (r.squarings >= 0) {
+    for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
+    return a;
+  }
+  return -expm1(r.ratio * log1p(-a));
 }
 
 /* The position of a channel's sample: transform * p; false when it leaves the volume box. */
@@ -143,10 +174,11 @@ bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRen
 }
 
 /* DVR: channel value v (stored) of a sample mixed into the sample's premultiplied colour sum and
- * transparency product (per-sample intermixing), its opacity corrected by `ratio` (segment length
- * over the reference spacing). Returns the channel's uncorrected alpha. */
+ * transparency product (per-sample intermixing), its opacity corrected by `ratio`
+ * (OctoOpacityRatio of the segment length over the reference spacing). Returns the channel's
+ * uncorrected alpha. */
 float OctoMixChannel(__global const OctoChannelParams* ch, __global const float4* lut, float v,
-                     float ratio, float3* mix_rgb, float* transmit) {
+                     OctoRatio ratio, float3* mix_rgb, float* transmit) {
   const float4 rgba = OctoTransfer(ch, lut, OctoWindowed(ch, v));
   const float a = OctoCorrectOpacity(rgba.w, ratio);
   *mix_rgb += rgba.xyz * a;

@@ -19,7 +19,9 @@
  * channel: its transformed position (outside the box: no sample), clamped into the valid extent
  * of the level (so clamp-to-edge equals the reference's and no virtual voxel is read), the octree
  * node (OctoFindNode; without transforms reused while the sample stays in the wanted node's box),
- * trilinear brick sample or node average, transfer function, compositing.
+ * trilinear brick sample or node average, transfer function, compositing. Empty-space skipping
+ * (docs/rendering.md) jumps over inert nodes (node value ranges), inert cells of resident bricks
+ * (cell ranges) and brickless leaves, without changing the image.
  */
 #include "feedback.h"
 #include "node_format.h"
@@ -145,23 +147,45 @@ float OctoSourceRead(__global const uint* nodes, OctoTreeGeometry g, OctoSource 
  * channel's range maps to zero opacity (max <= visible_lo or min >= visible_hi, computed on the
  * host from the transfer function); MIP (MinIP), every channel's running extremum is already at
  * least the range's max (at most its min) — "not sampled" never is. */
+/* Whether values in the range word `range` (min bits 0..15, max bits 16..31) cannot change the
+ * ray for enabled channel k (the test of OctoNodeInert for one channel). */
+bool OctoRangeInert(uint range, __global const OctoChannelParams* channels, const float* extreme,
+                    int k) {
+  const float lo = (float)(range & 0xffffu);
+  const float hi = (float)(range >> 16);
+#if OCTO_MODE == OCTO_MODE_DVR
+  (void)extreme;
+  return hi <= channels[k].visible_lo || lo >= channels[k].visible_hi;
+#elif OCTO_MODE == OCTO_MODE_MIP
+  (void)channels;
+  (void)lo;
+  return extreme[k] >= hi;
+#else
+  (void)channels;
+  (void)hi;
+  return extreme[k] <= lo;
+#endif
+}
+
 bool OctoNodeInert(__global const uint* nodes, ulong node, OctoTreeGeometry g, OctoRenderFrame f,
                    __global const OctoChannelParams* channels, const float* extreme) {
   (void)f; /* Only the unspecialised channel count reads it. */
+  const ulong base = node * OctoNodeWords(g) + (ulong)OCTO_NODE_RANGE_WORD(g.channels);
   for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-    const uint2 r = OctoNodeRange(nodes, node, g, OCTO_CHANNEL_OF(k));
-#if OCTO_MODE == OCTO_MODE_DVR
-    (void)extreme;
-    if (!((float)r.y <= channels[k].visible_lo || (float)r.x >= channels[k].visible_hi)) {
+    if (!OctoRangeInert(nodes[base + (ulong)OCTO_CHANNEL_OF(k)], channels, extreme, k)) {
       return false;
     }
-#elif OCTO_MODE == OCTO_MODE_MIP
-    (void)channels;
-    if (!(extreme[k] >= (float)r.y)) return false;
-#else
-    (void)channels;
-    if (!(extreme[k] <= (float)r.x)) return false;
-#endif
+  }
+  return true;
+}
+
+/* The same for a cell of a resident brick (cell ranges; `words`: the cell's first word): no
+ * sample whose brick-local position lies in the cell can change the ray. */
+bool OctoCellInert(__global const uint* words, OctoRenderFrame f,
+                   __global const OctoChannelParams* channels, const float* extreme) {
+  (void)f;
+  for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+    if (!OctoRangeInert(words[OCTO_CHANNEL_OF(k)], channels, extreme, k)) return false;
   }
   return true;
 }
@@ -228,7 +252,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                       OctoRenderFrame f, __global const OctoChannelParams* channels,
                       __global const float4* lut, volatile __global uint* request_flags,
                       volatile __global uint* request_list, uint request_capacity,
-                      __global uint* slot_used, uint frame, __global float4* image,
+                      __global uint* slot_used, __global const uint* cell_ranges, uint frame,
+                      __global float4* image,
                       volatile __global uint* counters, __global uint* ray_next,
                       __global float4* ray_acc, __global float* ray_extreme,
                       __global const uint* tiles_in, __global uint* tiles_out,
@@ -340,6 +365,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     float3 cache_hi = (float3)(0.0f);
     bool fast = false;
     float3 brick_origin = (float3)(0.0f);
+    int last_cell = -1; /* The brick's cell whose range was tested last (-1: none). */
     /* The band's level coordinates: position = entry_l + u_l * arc, clamped to the level's valid
      * voxel centres [0.5, valid_hi] (OctoClampToLevel; scaling by 2^-level is exact). */
     float3 entry_l = entry;
@@ -393,10 +419,16 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             all(level_pos < cache_hi)) {
           fresh = false;
         } else {
+          /* DVR finds the node first: in a brick resident at the sample's level the brick's cell
+           * ranges (below) do the skipping, cheaper than the walk from the root. */
+          const bool dvr = OCTO_MODE == OCTO_MODE_DVR;
+          if (dvr) shared_hit = OctoFindNode(nodes, g, shared_q, level);
+          fast = dvr && OctoNodeInBuffer(shared_hit.word0) &&
+                 shared_hit.node == shared_hit.wanted && shared_hit.level == level;
           /* Value ranges: jump over the inert node around p (before anything is requested). A
            * sample in an inert node's shell is taken, but not cached: the next one checks again. */
           bool near_face = false;
-          if (f.skip_empty) {
+          if (f.skip_empty && !fast) {
             float3 inert_lo;
             float3 inert_hi;
             if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
@@ -406,11 +438,12 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
               if (target > j) {
                 skipped += (target - j) * (uint)OCTO_ACTIVE_N;
                 i = band_base + target;
+                cached = false; /* shared_hit may have changed. */
                 continue;
               }
             }
           }
-          shared_hit = OctoFindNode(nodes, g, shared_q, level);
+          if (!dvr) shared_hit = OctoFindNode(nodes, g, shared_q, level);
           shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
           const float3 size =
               convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level - level);
@@ -422,6 +455,37 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
                  shared_hit.level == level;
           brick_origin = convert_float3(shared_hit.index.xyz * OctoBrickSize(g));
+          last_cell = -1;
+        }
+      }
+      /* Cell ranges: in a brick resident at the sample's level, jump over the cell around the
+       * sample when it cannot change the ray (tested once per cell the ray enters). Every skipped
+       * midpoint lies between p and the cell's exit, so its clamped level position lies in the
+       * cell too and reads only the voxels the cell's range covers. */
+      if (OCTO_ALL_IDENTITY && fast && f.skip_empty) {
+        const int3 cells = OctoCellsPerAxis(g);
+        const int3 cell = min(convert_int3(level_pos - brick_origin) / OCTO_CELL_SIZE, cells - 1);
+        const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
+        if (cell_id != last_cell) {
+          last_cell = cell_id;
+          /* The brick counts as used even when its first cell is skipped (eviction order). */
+          if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
+          __global const uint* words = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) +
+                                       (ulong)cell_id * (ulong)g.channels;
+          if (OctoCellInert(words, f, channels, extreme)) {
+            const float scale = ldexp(1.0f, level);
+            const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
+            const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
+                                        brick_origin + convert_float3(OctoBrickSize(g)));
+            const uint target = OctoFirstSegmentBeyond(entry, u, entry_abs, cell_lo * scale,
+                                                       cell_hi * scale, band_start, band_end, dt,
+                                                       band_n);
+            if (target > j) {
+              skipped += (target - j) * (uint)OCTO_ACTIVE_N;
+              i = band_base + target;
+              continue;
+            }
+          }
         }
       }
 #if OCTO_REFINE
@@ -453,7 +517,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       float transmit = 1.0f;
       bool transparent = true;
       /* Opacity corrected by the segment's physical length, whatever the level's step. */
-      const float ratio = seg / vpu * f.inv_reference;
+      const OctoRatio ratio = OctoOpacityRatio(seg / vpu * f.inv_reference);
 #endif
       /* All channels at one position read one source: resolve it once. */
       OctoSource shared_src;

@@ -169,6 +169,7 @@ Result<RenderOutcome> RenderFullFrames(render::VolumeRenderer& renderer,
     out.stats.ms_upload += s.ms_upload;
     out.stats.passes += s.passes > 0 ? s.passes : 1;
     out.stats.samples += s.samples;
+    out.stats.samples_skipped += s.samples_skipped;
     out.stats.requests += s.requests;
     out.stats.bricks_uploaded += s.bricks_uploaded;
     out.stats.finished_fraction = s.finished_fraction;
@@ -575,6 +576,7 @@ int RunRender(std::span<const std::string> args) {
     report.passes = s.passes;
     report.bricks_uploaded = s.bricks_uploaded;
     report.samples = s.samples;
+    report.samples_skipped = s.samples_skipped;
     report.requests = s.requests;
     report.finished_fraction = s.finished_fraction;
     report.final = s.final;

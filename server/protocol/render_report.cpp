@@ -10,6 +10,7 @@ std::string RenderReportJson(const RenderReport& r) {
   j["passes"] = r.passes;
   j["bricks_uploaded"] = r.bricks_uploaded;
   j["samples"] = r.samples;
+  j["samples_skipped"] = r.samples_skipped;
   j["final"] = r.final;
   j["width"] = r.width;
   j["height"] = r.height;

@@ -18,6 +18,7 @@ struct RenderReport {
   int passes = 0;        // Kernel passes (full frames, or refinement passes).
   uint64_t bricks_uploaded = 0;
   uint64_t samples = 0;          // Channel samples taken, all passes.
+  uint64_t samples_skipped = 0;  // Channel samples jumped over by empty-space skipping.
   uint64_t requests = 0;         // Node requests read back, all passes.
   double finished_fraction = 0;  // Rays finished after the last pass.
   bool final = false;            // The image is complete at the level of detail the screen needs.

@@ -12,6 +12,7 @@
 #include <utility>
 
 #include "octree/node_encoding.h"
+#include "render/cell_ranges.h"
 #include "render/cl_call.h"
 
 namespace octoscope::render {
@@ -88,6 +89,14 @@ struct DeviceOctree::Impl {
   std::vector<uint64_t> slot_owner;                 // Per slot: reserved for this owner; 0 none.
   std::unordered_map<uint64_t, uint32_t> reserved;  // Owner -> slots reserved for it (> 0).
   std::vector<std::byte> raw;  // One stored brick of a uint8 tree as ReadBrick gives it.
+
+  // --- Cell ranges (render/cell_ranges.h): per slot, cell_words words; the host mirror is
+  // computed from each brick's device bytes as it is uploaded and written after its bricks. ---
+  uint64_t cell_words = 0;
+  std::vector<uint32_t> cell_mirror;  // slot_count * cell_words.
+  ClMem cell_ranges_buffer;
+  uint32_t cells_dirty_lo = 0;  // Slots [lo, hi) whose mirror changed since the last write.
+  uint32_t cells_dirty_hi = 0;
 
   // --- Transfer (header, "Transfer"). ---
   bool mapped_path = false;
@@ -437,6 +446,32 @@ struct DeviceOctree::Impl {
     return Status::Ok();
   }
 
+  // Cell ranges of the brick `bytes` (device layout) destined for `slot`, into the mirror.
+  void ComputeCells(uint32_t slot, std::span<const std::byte> bytes) {
+    const std::span<const uint16_t> samples(reinterpret_cast<const uint16_t*>(bytes.data()),
+                                            bytes.size() / 2);
+    ComputeCellRanges(tree->geometry(), samples,
+                      std::span(cell_mirror).subspan(slot * cell_words, cell_words));
+    if (cells_dirty_lo == cells_dirty_hi) {
+      cells_dirty_lo = slot;
+      cells_dirty_hi = slot + 1;
+    } else {
+      cells_dirty_lo = std::min(cells_dirty_lo, slot);
+      cells_dirty_hi = std::max(cells_dirty_hi, slot + 1);
+    }
+  }
+
+  // Writes the slots whose cell ranges changed (one blocking write of their span).
+  Status WriteCells() {
+    if (cells_dirty_lo == cells_dirty_hi) return Status::Ok();
+    const uint64_t first = cells_dirty_lo * cell_words;
+    const uint64_t count = (cells_dirty_hi - cells_dirty_lo) * cell_words;
+    cells_dirty_lo = cells_dirty_hi = 0;
+    return OCTO_CL(clEnqueueWriteBuffer(cc->queue(), cell_ranges_buffer.get(), CL_TRUE, first * 4,
+                                        count * 4, cell_mirror.data() + first, 0, nullptr,
+                                        nullptr));
+  }
+
   Status Fill(const ClMem& buffer, size_t bytes) const {
     const cl_uint zero = 0;
     OCTO_CL_RETURN_IF_ERROR(clEnqueueFillBuffer(cc->queue(), buffer.get(), &zero, sizeof(zero), 0,
@@ -468,6 +503,7 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
   m.words = static_cast<size_t>(octree::NodeWords(m.channels));
   m.bytes_per_sample = geometry.bytes_per_sample();
   m.device_brick_bytes = geometry.brick_samples() * 2;
+  m.cell_words = CellRangeWords(geometry);
 
   self->request_capacity_ = options.request_capacity;
   self->max_allocation_bytes_ = options.max_allocation_bytes;
@@ -546,6 +582,13 @@ Status DeviceOctree::AllocateBricks(uint64_t brick_buffer_bytes, uint64_t max_al
   }
   OCTO_ASSIGN_OR_RETURN(ClMem used, m.cc->CreateBuffer(CL_MEM_READ_WRITE, slot_count * 4));
   OCTO_RETURN_IF_ERROR(m.Fill(used, slot_count * 4));
+  const uint64_t cell_bytes = slot_count * m.cell_words * 4;
+  OCTO_ASSIGN_OR_RETURN(ClMem cells, m.cc->CreateBuffer(CL_MEM_READ_ONLY, cell_bytes));
+  OCTO_RETURN_IF_ERROR(m.Fill(cells, cell_bytes));
+  m.cell_ranges_buffer = std::move(cells);
+  m.cell_mirror.assign(slot_count * m.cell_words, 0);
+  m.cells_dirty_lo = 0;
+  m.cells_dirty_hi = 0;
   m.bricks = std::move(bricks);
   m.mapped.assign(m.bricks.size(), nullptr);
   m.slot_used_buffer = std::move(used);
@@ -574,6 +617,8 @@ Status DeviceOctree::ResizeBrickBuffer(uint64_t brick_buffer_bytes) {
   m.bricks.clear();
   m.mapped.clear();
   m.slot_used_buffer.reset();
+  m.cell_ranges_buffer.reset();
+  m.cell_mirror.clear();
   m.slot_node.clear();
   m.slot_key.clear();
   m.slot_used.clear();
@@ -830,6 +875,8 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       status = read;
       break;
     }
+    // The cell ranges of exactly the bytes the device receives.
+    m.ComputeCells(slot, *destination);
     if (evict) {
       ++next_victim;
       m.ReleaseSlot(slot, false);
@@ -862,8 +909,10 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
       ++s.reserved;
     }
   }
-  // The bytes are on the device (unmapped / written) before the entries say so.
+  // The bytes and their cell ranges are on the device (unmapped / written) before the entries
+  // say so.
   if (Status finished = m.FinishTransfers(); status.ok()) status = std::move(finished);
+  if (Status cells = m.WriteCells(); status.ok()) status = std::move(cells);
   // The residency bits reach the device even when an upload failed midway.
   const Status flushed = m.Flush(nullptr);
   total_uploaded_ += s.uploaded;
@@ -896,6 +945,9 @@ std::array<cl_mem, kMaxBrickAllocations> DeviceOctree::brick_buffers() const {
 cl_mem DeviceOctree::request_flags() const { return impl_->request_flags.get(); }
 cl_mem DeviceOctree::request_list() const { return impl_->request_list.get(); }
 cl_mem DeviceOctree::slot_used() const { return impl_->slot_used_buffer.get(); }
+cl_mem DeviceOctree::cell_ranges() const { return impl_->cell_ranges_buffer.get(); }
+std::span<const uint32_t> DeviceOctree::cell_range_mirror() const { return impl_->cell_mirror; }
+uint64_t DeviceOctree::cell_range_words() const { return impl_->cell_words; }
 
 int DeviceOctree::allocation_count() const { return static_cast<int>(impl_->bricks.size()); }
 uint64_t DeviceOctree::resident_bricks() const { return impl_->slot_of.size(); }
@@ -907,7 +959,8 @@ uint64_t DeviceOctree::brick_buffer_bytes() const {
 uint64_t DeviceOctree::device_bytes() const {
   const Impl& m = *impl_;
   return brick_buffer_bytes() + m.mirror.size() * 4 + m.capacity_nodes() * 4 +
-         (uint64_t{m.request_capacity} + 1) * 4 + uint64_t{slot_count_} * 4;
+         (uint64_t{m.request_capacity} + 1) * 4 + uint64_t{slot_count_} * 4 +
+         m.cell_mirror.size() * 4;
 }
 
 uint64_t DeviceOctree::reserved_slots() const {

@@ -20,6 +20,10 @@
 //    split over at most kMaxBrickAllocations device allocations of `slots_per_allocation` slots
 //    each when one allocation would exceed CL_DEVICE_MAX_MEM_ALLOC_SIZE (or the option's cap). Slot
 //    s lives in allocation s / slots_per_allocation at brick offset s % slots_per_allocation.
+//  * CELL RANGES (render/cell_ranges.h): per slot, the per-channel value ranges of the brick's
+//    8^3-voxel cells (cell_range_words() uint32 words per slot), computed by Upload from the very
+//    bytes it sends and written (one write of the changed slots' span) before the node entries
+//    that make those bricks resident; the kernels skip the cells that cannot change a ray.
 //  * FEEDBACK, written by the kernels (kernels/raycast.cl):
 //      request_flags: one uint per node id; a kernel that wants node n does
 //        `if (atomic_xchg(&request_flags[n], frame) != frame)` append n to request_list;
@@ -213,13 +217,16 @@ class DeviceOctree {
   cl_mem request_list() const;
   uint32_t request_capacity() const { return request_capacity_; }
   cl_mem slot_used() const;
+  // Cell ranges: slot s's words start at s * cell_range_words().
+  cl_mem cell_ranges() const;
+  uint64_t cell_range_words() const;
 
   // --- Introspection (tests, stats). ---
   const octree::Octree& octree() const { return *octree_; }
   const octree::BrickGeometry& geometry() const { return octree_->geometry(); }
   uint32_t slot_count() const { return slot_count_; }
   // Device bytes of the brick buffer (slot_count * device_brick_bytes) and of all the mirror's
-  // buffers (brick, node, feedback buffers).
+  // buffers (brick, node, cell range, feedback buffers).
   uint64_t brick_buffer_bytes() const;
   uint64_t device_bytes() const;
   // Slots reserved now (all owners).
@@ -239,6 +246,8 @@ class DeviceOctree {
   uint64_t device_brick_bytes() const;
   // The transfer Upload uses (never kAuto).
   UploadPath upload_path() const;
+  // The host mirror of the cell ranges (what the device holds after the last Upload).
+  std::span<const uint32_t> cell_range_mirror() const;
   // Host copy of the slot stamps (slot_used) as of the last ReadFeedback / Upload.
   std::span<const uint32_t> slot_stamps() const;
 

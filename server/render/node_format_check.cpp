@@ -7,6 +7,7 @@
 #include "../../kernels/node_format.h"
 #include "octree/brick_geometry.h"
 #include "octree/node_encoding.h"
+#include "render/cell_ranges.h"
 
 namespace octoscope::render {
 namespace {
@@ -33,6 +34,7 @@ constexpr bool NodeWordsAgree() {
   return true;
 }
 static_assert(NodeWordsAgree());
+static_assert(OCTO_CELL_SIZE == kCellSize);
 
 // The geometry argument is passed by value to kernels: no padding, 32-bit fields only.
 static_assert(sizeof(int) == 4);

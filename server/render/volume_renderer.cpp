@@ -204,9 +204,10 @@ struct VolumeRenderer::Impl {
         kernel, octree.node_buffer(), bricks[0], bricks[1], bricks[2], bricks[3],
         octree.slots_per_allocation(), TreeGeometry(octree.geometry()), in.frame, in.channels,
         in.lut, octree.request_flags(), octree.request_list(), octree.request_capacity(),
-        octree.slot_used(), frame, image, counters, ray_next, ray_acc, ray_extreme,
-        tiles.refine ? tiles.tiles_in : dummy.get(), tiles.refine ? tiles.tiles_out : dummy.get(),
-        tiles.refine ? tiles.stamps : dummy.get(), tiles.offset, tiles.count, tiles.all ? 1 : 0));
+        octree.slot_used(), octree.cell_ranges(), frame, image, counters, ray_next, ray_acc,
+        ray_extreme, tiles.refine ? tiles.tiles_in : dummy.get(),
+        tiles.refine ? tiles.tiles_out : dummy.get(), tiles.refine ? tiles.stamps : dummy.get(),
+        tiles.offset, tiles.count, tiles.all ? 1 : 0));
     const Clock::time_point start = Clock::now();
     if (tiles.refine) {
       OCTO_RETURN_IF_ERROR(EnqueueTiles(kernel, tiles.count));

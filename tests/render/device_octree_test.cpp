@@ -26,6 +26,7 @@
 #include "octree/node_encoding.h"
 #include "paging/memory_page_store.h"
 #include "paging/page_cache.h"
+#include "render/cell_ranges.h"
 #include "render/cl_handles.h"
 #include "render_fixture.h"
 
@@ -213,6 +214,23 @@ std::vector<uint16_t> DeviceBrick(const DeviceOctree& dev, uint32_t slot) {
   EXPECT_TRUE(Cc().ReadBuffer(buffer, (slot % spa) * dev.device_brick_bytes(),
                               dev.device_brick_bytes(), out.data())
                   .ok());
+  return out;
+}
+
+// The cell ranges of `slot` read straight from the device.
+std::vector<uint32_t> DeviceCells(const DeviceOctree& dev, uint32_t slot) {
+  const uint64_t words = dev.cell_range_words();
+  std::vector<uint32_t> out(words);
+  const ClMem buffer = ClMem::Retain(dev.cell_ranges());
+  EXPECT_TRUE(Cc().ReadBuffer(buffer, slot * words * 4, words * 4, out.data()).ok());
+  return out;
+}
+
+// The cell ranges node `id`'s brick must have (ComputeCellRanges is checked against brute force
+// in cell_ranges_test.cpp).
+std::vector<uint32_t> HostCells(const Octree& tree, uint32_t id) {
+  std::vector<uint32_t> out(CellRangeWords(tree.geometry()));
+  ComputeCellRanges(tree.geometry(), HostBrick(tree, id), out);
   return out;
 }
 
@@ -579,6 +597,8 @@ TEST_P(DeviceOctreeUploadPathTest, EveryResidentSlotHoldsItsBrick) {
       if (!slot.has_value()) continue;
       ASSERT_EQ(DeviceBrick(*dev, *slot), HostBrick(tree, node.id))
           << "node " << node.id << " slot " << *slot << " after leaves from " << first;
+      ASSERT_EQ(DeviceCells(*dev, *slot), HostCells(tree, node.id))
+          << "node " << node.id << " slot " << *slot << " after leaves from " << first;
     }
   }
   EXPECT_GT(evicted, 0u);
@@ -820,6 +840,7 @@ TEST(DeviceOctreeTest, StaleResidentBricksAreReuploadedFirst) {
   for (uint32_t id : ids) {
     ASSERT_TRUE(dev->SlotOf(id).has_value());
     EXPECT_EQ(DeviceBrick(*dev, *dev->SlotOf(id)), HostBrick(tree, id)) << id;
+    EXPECT_EQ(DeviceCells(*dev, *dev->SlotOf(id)), HostCells(tree, id)) << id;
   }
   // Nothing is stale any more.
   ASSERT_TRUE(dev->Upload({}, budget, &stats).ok());

@@ -470,6 +470,23 @@ TEST(VolumeRendererTest, EmptySpaceSkippingChangesNothingButSamples) {
   }
 }
 
+// Refinement at level 0 with and without skipping: identical images, every sample either taken
+// or skipped, none skipped without; returns the image and the stats with skipping.
+RenderImage RenderBothWays(Rig& rig, const Camera& camera, const RenderParams& params,
+                           const std::string& what, FrameStats* with_stats) {
+  FrameOptions with = Refine();
+  with.lod_bias = -4;  // Level 0 everywhere: comparable with the reference.
+  FrameOptions without = with;
+  without.skip_empty_space = false;
+  FrameStats without_stats;
+  const RenderImage a = Gpu(rig, camera, params, with, with_stats);
+  const RenderImage b = Gpu(rig, camera, params, without, &without_stats);
+  EXPECT_EQ(a.rgba, b.rgba) << what;
+  EXPECT_EQ(with_stats->samples + with_stats->samples_skipped, without_stats.samples) << what;
+  EXPECT_EQ(without_stats.samples_skipped, 0u) << what;
+  return a;
+}
+
 // Value-range skipping (issue 12): a LOSSLESS scene where every brick holds noise (no brickless
 // node, so the old leaf skipping never applies) — dim noise around bright blobs, two channels.
 // DVR windows / a LUT make the dim noise fully transparent, MIP passes through dim nodes after a
@@ -518,21 +535,13 @@ TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
       const std::string what =
           std::string(RenderModeName(mode)) + " " + std::string(ProjectionName(p));
       const Camera camera = Standard(*rig, StandardView::kIso, p, 48, 48);
-      FrameOptions with = Refine();
-      with.lod_bias = -4;  // Level 0 everywhere: comparable with the reference.
-      FrameOptions without = with;
-      without.skip_empty_space = false;
-      FrameStats with_stats, without_stats;
-      const RenderImage a = Gpu(*rig, camera, params, with, &with_stats);
-      const RenderImage b = Gpu(*rig, camera, params, without, &without_stats);
-      EXPECT_EQ(a.rgba, b.rgba) << what;
+      FrameStats with_stats;
+      const RenderImage a = RenderBothWays(*rig, camera, params, what, &with_stats);
       // DVR and MinIP skip most of the noise; MIP only behind rays that already crossed a
       // blob of both channels' brightness.
       EXPECT_GT(with_stats.samples_skipped,
                 mode == RenderMode::kMip ? uint64_t{0} : with_stats.samples / 4)
           << what;
-      EXPECT_LT(with_stats.samples, without_stats.samples) << what;
-      EXPECT_EQ(without_stats.samples_skipped, 0u) << what;
       const ImageDiff d = CompareImages(a, Reference(*rig, camera, params));
       EXPECT_LE(d.max_abs, kTol) << what << ": " << Describe(d);
 
@@ -551,6 +560,54 @@ TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
       EXPECT_EQ(fa.rgba, fb.rgba) << what;
       EXPECT_EQ(fa.rgba, a.rgba) << what;
       EXPECT_GT(on_stats.samples_skipped, 0u) << what;
+    }
+  }
+}
+
+// Cell ranges (render/cell_ranges.h): every 32^3 brick holds a bright blob, so no node is inert
+// and node ranges skip nothing for DVR, but most of each brick's 8^3 cells are dim: the kernel
+// must skip them and still give exactly the image without skipping, and the reference's image.
+TEST(VolumeRendererTest, CellRangeSkippingInsideNonEmptyBricksIsLossless) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {64, 64, 64};
+  spec.brick = {32, 32, 32};
+  spec.channels = 2;
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    // Channel 0's blob at each brick's centre, channel 1's nearer its low corner.
+    const int64_t centre = c == 0 ? 16 : 9;
+    const int64_t dx = x % 32 - centre;
+    const int64_t dy = y % 32 - centre;
+    const int64_t dz = z % 32 - centre;
+    if (dx * dx + dy * dy + dz * dz < 9) {
+      return static_cast<uint16_t>(30000 + Hash(x, y, z, c) % 30000);
+    }
+    const auto in_shell = [](int64_t v) { return v < 2 || v >= 62; };
+    if (in_shell(x) || in_shell(y) || in_shell(z)) return 0;
+    return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+  };
+  auto rig = MakeRig(spec);
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->scene->tree->stats().homogeneous_nodes, 0u);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    for (ChannelParams& ch : params.channels) {
+      ch.window = 20000;
+      ch.level = 12000;  // Transparent below 2000: all the dim noise.
+      ch.opacity_scale = 0.3;
+    }
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      const std::string what =
+          std::string(RenderModeName(mode)) + " " + std::string(ProjectionName(p));
+      const Camera camera = Standard(*rig, StandardView::kIso, p, 40, 40);
+      FrameStats with_stats;
+      const RenderImage a = RenderBothWays(*rig, camera, params, what, &with_stats);
+      // MIP skips only behind blobs; DVR and MinIP (the black shell comes first) most cells.
+      EXPECT_GT(with_stats.samples_skipped,
+                mode == RenderMode::kMip ? uint64_t{0} : with_stats.samples)
+          << what;
+      const ImageDiff d = CompareImages(a, Reference(*rig, camera, params));
+      EXPECT_LE(d.max_abs, kTol) << what << ": " << Describe(d);
     }
   }
 }
