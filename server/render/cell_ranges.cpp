@@ -35,63 +35,59 @@ void ComputeCellRanges(const octree::BrickGeometry& geometry, std::span<const ui
                        std::span<uint32_t> out) {
   const octree::Vec3& bs = geometry.brick_size();
   const octree::Vec3 cells = CellsPerAxis(geometry);
-  const int64_t sx = bs[0] + 2;
-  const int64_t sy = bs[1] + 2;
-  const int64_t sz = bs[2] + 2;
-  const int64_t channels = geometry.channels();
-  // Separable min/max: reduce x windows per stored row, then y windows, then z windows; each
-  // pass shrinks one axis from stored voxels to cells. Values as (min, max) pairs.
-  struct Range {
-    uint16_t lo;
-    uint16_t hi;
-  };
-  std::vector<Range> by_x(static_cast<size_t>(sz * sy * cells[0] * channels));
-  for (int64_t row = 0; row < sz * sy; ++row) {
-    const uint16_t* in = brick.data() + row * sx * channels;
-    for (int64_t cx = 0; cx < cells[0]; ++cx) {
-      Range* r = &by_x[static_cast<size_t>((row * cells[0] + cx) * channels)];
-      for (int64_t c = 0; c < channels; ++c) r[c] = {0xffff, 0};
-      for (int64_t x = WindowFirst(static_cast<int>(cx));
-           x <= WindowLast(static_cast<int>(cx), bs[0]); ++x) {
-        for (int64_t c = 0; c < channels; ++c) {
-          const uint16_t v = in[x * channels + c];
-          r[c].lo = std::min(r[c].lo, v);
-          r[c].hi = std::max(r[c].hi, v);
-        }
-      }
-    }
-  }
-  const int64_t row_ranges = cells[0] * channels;  // Ranges of one (z, y) row after the x pass.
-  std::vector<Range> by_y(static_cast<size_t>(sz * cells[1] * row_ranges));
-  for (int64_t z = 0; z < sz; ++z) {
-    for (int64_t cy = 0; cy < cells[1]; ++cy) {
-      Range* r = &by_y[static_cast<size_t>((z * cells[1] + cy) * row_ranges)];
-      for (int64_t k = 0; k < row_ranges; ++k) r[k] = {0xffff, 0};
-      for (int64_t y = WindowFirst(static_cast<int>(cy));
-           y <= WindowLast(static_cast<int>(cy), bs[1]); ++y) {
-        const Range* in = &by_x[static_cast<size_t>((z * sy + y) * row_ranges)];
-        for (int64_t k = 0; k < row_ranges; ++k) {
-          r[k].lo = std::min(r[k].lo, in[k].lo);
-          r[k].hi = std::max(r[k].hi, in[k].hi);
-        }
-      }
-    }
-  }
-  const int64_t slab_ranges = cells[1] * row_ranges;  // Ranges of one z plane after the y pass.
-  std::vector<Range> r(static_cast<size_t>(slab_ranges));
+  const size_t sy = static_cast<size_t>(bs[1] + 2);
+  const size_t channels = static_cast<size_t>(geometry.channels());
+  const size_t row = static_cast<size_t>(bs[0] + 2) * channels;  // Samples of one stored row.
+  const size_t plane = sy * row;
+  // Separable min/max, z then y then x: the first two passes are element-wise over whole
+  // contiguous rows (they vectorise and read each sample about once), leaving a small array of
+  // cells_z * cells_y rows for the x windows.
+  std::vector<uint16_t> z_lo(static_cast<size_t>(cells[2]) * plane, 0xffff);
+  std::vector<uint16_t> z_hi(z_lo.size(), 0);
   for (int64_t cz = 0; cz < cells[2]; ++cz) {
-    uint32_t* words = out.data() + cz * slab_ranges;
-    std::fill(r.begin(), r.end(), Range{0xffff, 0});
-    for (int64_t z = WindowFirst(static_cast<int>(cz));
-         z <= WindowLast(static_cast<int>(cz), bs[2]); ++z) {
-      const Range* in = &by_y[static_cast<size_t>(z * slab_ranges)];
-      for (int64_t k = 0; k < slab_ranges; ++k) {
-        r[k].lo = std::min(r[k].lo, in[k].lo);
-        r[k].hi = std::max(r[k].hi, in[k].hi);
+    uint16_t* lo = z_lo.data() + static_cast<size_t>(cz) * plane;
+    uint16_t* hi = z_hi.data() + static_cast<size_t>(cz) * plane;
+    for (int z = WindowFirst(static_cast<int>(cz)); z <= WindowLast(static_cast<int>(cz), bs[2]);
+         ++z) {
+      const uint16_t* in = brick.data() + static_cast<size_t>(z) * plane;
+      for (size_t i = 0; i < plane; ++i) {
+        lo[i] = std::min(lo[i], in[i]);
+        hi[i] = std::max(hi[i], in[i]);
       }
     }
-    for (int64_t k = 0; k < slab_ranges; ++k) {
-      words[k] = uint32_t{r[k].lo} | (uint32_t{r[k].hi} << 16);
+  }
+  std::vector<uint16_t> y_lo(static_cast<size_t>(cells[2] * cells[1]) * row, 0xffff);
+  std::vector<uint16_t> y_hi(y_lo.size(), 0);
+  for (int64_t cz = 0; cz < cells[2]; ++cz) {
+    for (int64_t cy = 0; cy < cells[1]; ++cy) {
+      const size_t at = static_cast<size_t>(cz * cells[1] + cy) * row;
+      uint16_t* lo = y_lo.data() + at;
+      uint16_t* hi = y_hi.data() + at;
+      for (int y = WindowFirst(static_cast<int>(cy)); y <= WindowLast(static_cast<int>(cy), bs[1]);
+           ++y) {
+        const size_t from = static_cast<size_t>(cz) * plane + static_cast<size_t>(y) * row;
+        for (size_t i = 0; i < row; ++i) {
+          lo[i] = std::min(lo[i], z_lo[from + i]);
+          hi[i] = std::max(hi[i], z_hi[from + i]);
+        }
+      }
+    }
+  }
+  uint32_t* word = out.data();  // Cells x fastest, channels interleaved.
+  for (int64_t czy = 0; czy < cells[2] * cells[1]; ++czy) {
+    const uint16_t* lo = y_lo.data() + static_cast<size_t>(czy) * row;
+    const uint16_t* hi = y_hi.data() + static_cast<size_t>(czy) * row;
+    for (int64_t cx = 0; cx < cells[0]; ++cx) {
+      for (size_t c = 0; c < channels; ++c) {
+        uint16_t l = 0xffff;
+        uint16_t h = 0;
+        for (int x = WindowFirst(static_cast<int>(cx));
+             x <= WindowLast(static_cast<int>(cx), bs[0]); ++x) {
+          l = std::min(l, lo[static_cast<size_t>(x) * channels + c]);
+          h = std::max(h, hi[static_cast<size_t>(x) * channels + c]);
+        }
+        *word++ = uint32_t{l} | (uint32_t{h} << 16);
+      }
     }
   }
 }
