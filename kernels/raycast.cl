@@ -347,6 +347,10 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     uint band_base = 0u;     /* Global index of its first sample. */
     float band_end = len;
     float dt = f.step;
+#if OCTO_MODE == OCTO_MODE_DVR
+    OctoRatio band_ratio = OctoOpacityRatio(f.step / vpu * f.inv_reference); /* Full segments. */
+#endif
+    bool terminated = false; /* DVR: early termination inside a brick run. */
     uint band_n = 0u;
     bool last_band = true;
     bool band_ready = false;
@@ -381,6 +385,9 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         band_end = fmax(band_end, band_start);
         last_band = band_end >= len;
         dt = f.step * ldexp(1.0f, level);
+#if OCTO_MODE == OCTO_MODE_DVR
+        band_ratio = OctoOpacityRatio(dt / vpu * f.inv_reference);
+#endif
         /* Segments of dt, the last shortened to the band's end; a float sliver is no segment. A
          * ray always has at least one. */
         const float floor_n = (band_base == 0u && last_band) ? 1.0f : 0.0f;
@@ -488,6 +495,78 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           }
         }
       }
+      /* Brick-local marching: once a ray is in a brick resident at its level, the samples up to
+       * the brick's exit (found once; the band's shortened last segment excluded) run in one
+       * tight loop: no box test, no node logic, the position straight from the sample index
+       * (as below, so the same sample gives the same value whichever loop takes it), cells
+       * tested as they are entered. The first sample of a hit takes the general path below,
+       * which requests and stamps. */
+      if (OCTO_ALL_IDENTITY && fast && !fresh) {
+        const float scale = ldexp(1.0f, level);
+        const uint run_end =
+            min(OctoFirstSegmentBeyond(entry, u, entry_abs, cache_lo * scale, cache_hi * scale,
+                                       band_start, band_end, dt, band_n),
+                band_n - 1u);
+        if (run_end > j) {
+          const int3 cells = OctoCellsPerAxis(g);
+          __global const uint* slot_cells = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g);
+          uint jj = j;
+          while (jj < run_end) {
+            const float run_start = band_start + (float)jj * dt;
+            const float run_arc = run_start + 0.5f * dt;
+            const float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
+            if (f.skip_empty) {
+              const int3 cell = min(convert_int3(lp - brick_origin) / OCTO_CELL_SIZE, cells - 1);
+              const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
+              if (cell_id != last_cell) {
+                last_cell = cell_id;
+                if (OctoCellInert(slot_cells + (ulong)cell_id * (ulong)g.channels, f, channels,
+                                  extreme)) {
+                  const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
+                  const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
+                                              brick_origin + convert_float3(OctoBrickSize(g)));
+                  const uint target =
+                      OctoFirstSegmentBeyond(entry, u, entry_abs, cell_lo * scale,
+                                             cell_hi * scale, band_start, band_end, dt, band_n);
+                  if (target > jj) {
+                    skipped += (target - jj) * (uint)OCTO_ACTIVE_N;
+                    jj = target;
+                    continue;
+                  }
+                }
+              }
+            }
+            const OctoTrilinear tri = OctoTrilinearLocal(g, lp + 0.5f - brick_origin);
+#if OCTO_MODE == OCTO_MODE_DVR
+            float3 run_rgb = (float3)(0.0f);
+            float run_transmit = 1.0f;
+#endif
+            for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+              const float v = OctoTrilinearRead(shared_brick, tri, OCTO_CHANNEL_OF(k));
+#if OCTO_MODE == OCTO_MODE_DVR
+              OctoMixChannel(&channels[k], lut, v, band_ratio, &run_rgb, &run_transmit);
+#elif OCTO_MODE == OCTO_MODE_MIP
+              extreme[k] = fmax(extreme[k], v);
+#else
+              extreme[k] = fmin(extreme[k], v);
+#endif
+            }
+            samples += (uint)OCTO_ACTIVE_N;
+            ++jj;
+#if OCTO_MODE == OCTO_MODE_DVR
+            acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
+            if (acc.w >= 0.999f) {
+              terminated = true;
+              break;
+            }
+#endif
+          }
+          i = band_base + jj;
+          if (terminated) break;
+          continue;
+        }
+      }
+
 #if OCTO_REFINE
       /* Refinement samples only the wanted level: a missing brick pauses the ray here. */
       bool missing = false;
