@@ -194,9 +194,10 @@ Result<InMemoryOctree> BuildInMemory(const LoadedVolume& v, int64_t brick, doubl
   return t;
 }
 
-// Bench appearance: per channel a window from the data's histogram (60th percentile, mostly
-// background, to the 99.9th), the file's colour or a palette colour, DVR opacity 0.3.
-RenderParams BenchParams(const LoadedVolume& v, RenderMode mode) {
+// Bench appearance: per channel a window from the data's histogram (the `window_low`
+// percentile — 60 by default, mostly background — to the 99.9th), the file's colour or a palette
+// colour, DVR opacity 0.3.
+RenderParams BenchParams(const LoadedVolume& v, RenderMode mode, double window_low) {
   static constexpr std::array<std::array<double, 3>, 4> kPalette = {
       {{0.2, 1, 0.3}, {1, 0.2, 0.8}, {0.2, 0.8, 1}, {1, 0.9, 0.2}}};
   RenderParams params = render::DefaultRenderParams(v.channel_count(), v.stored_type, mode);
@@ -213,7 +214,7 @@ RenderParams BenchParams(const LoadedVolume& v, RenderMode mode) {
       }
       return 65535;
     };
-    const double lo = percentile(0.6);
+    const double lo = percentile(window_low / 100);
     const double hi = std::max(lo + 2, static_cast<double>(percentile(0.999)));
     render::ChannelParams& cp = params.channels[c];
     cp.window = hi - lo;
@@ -809,6 +810,10 @@ int RunBenchRender(std::span<const std::string> args) {
   flags.AddValue("embryo-percent", "P",
                  "how much of the demo's box the embryo spans per axis, 1..100 (small: sparse)",
                  "92");
+  flags.AddValue("window-low", "PCT",
+                 "each channel's window starts at this percentile of its voxels, 0..99\n"
+                 "                            (sparse volumes: above the background noise)",
+                 "60");
   flags.AddValue("out-dir", "DIR", "output directory", "out/bench-render");
   flags.AddValue("sizes", "LIST", "image sizes (first: the base size)", "256,512,1024");
   flags.AddValue("reference-size", "R",
@@ -838,6 +843,10 @@ int RunBenchRender(std::span<const std::string> args) {
   if (!channels.ok()) return Usage(channels.status().message(), flags);
   auto embryo_percent = flags.GetInt("embryo-percent", 92, 1, 100);
   if (!embryo_percent.ok()) return Usage(embryo_percent.status().message(), flags);
+  auto window_low = flags.GetDouble("window-low", 60);
+  if (!window_low.ok()) return Usage(window_low.status().message(), flags);
+  if (!(*window_low >= 0 && *window_low <= 99))
+    return Usage("--window-low must be in [0, 99]", flags);
   auto sizes = ParseSizes(flags.Get("sizes").value_or(quick ? "32" : "256,512,1024"));
   if (!sizes.ok()) return Usage(sizes.status().message(), flags);
   auto reference_size = flags.GetInt("reference-size", quick ? 24 : 256, 8, 4096);
@@ -887,8 +896,8 @@ int RunBenchRender(std::span<const std::string> args) {
   auto loaded = LoadVolume(*source, description);
   if (!loaded.ok()) return Fail(loaded.status().ToString());
   source.reset();
-  loaded->dvr = BenchParams(*loaded, RenderMode::kDvr);
-  loaded->mip = BenchParams(*loaded, RenderMode::kMip);
+  loaded->dvr = BenchParams(*loaded, RenderMode::kDvr, *window_low);
+  loaded->mip = BenchParams(*loaded, RenderMode::kMip, *window_low);
   const render::Vec3 spacing = render::PhysicalSpacing(loaded->info);
   const render::Box3 box = render::PhysicalBounds(loaded->info.size, spacing);
 

@@ -169,6 +169,8 @@ TEST(BenchCommandTest, BadArgumentsAreUsageErrors) {
   EXPECT_EQ(RunOctoscope("bench render --brick 7").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --embryo-percent 0").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --embryo-percent 101").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --window-low 100").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --window-low -1").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --no-such-flag").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --help").exit_code, 0);
   EXPECT_EQ(RunOctoscope("bench render /no/such/file.tif").exit_code, 2);
