@@ -146,7 +146,8 @@ float OctoSourceRead(__global const uint* nodes, OctoTreeGeometry g, OctoSource 
 /* Whether node `node`'s subtree cannot change the ray (value-range skipping): DVR, every enabled
  * channel's range maps to zero opacity (max <= visible_lo or min >= visible_hi, computed on the
  * host from the transfer function); MIP (MinIP), every channel's running extremum is already at
- * least the range's max (at most its min) — "not sampled" never is. */
+ * least the range's max (at most its min) — "not sampled" never is — and MIP also once a channel
+ * has a sample and the range's max is at most its window's low end. */
 /* Whether values in the range word `range` (min bits 0..15, max bits 16..31) cannot change the
  * ray for enabled channel k (the test of OctoNodeInert for one channel). */
 bool OctoRangeInert(uint range, __global const OctoChannelParams* channels, const float* extreme,
@@ -157,9 +158,11 @@ bool OctoRangeInert(uint range, __global const OctoChannelParams* channels, cons
   (void)extreme;
   return hi <= channels[k].visible_lo || lo >= channels[k].visible_hi;
 #elif OCTO_MODE == OCTO_MODE_MIP
-  (void)channels;
+  /* Once channel k has a sample (extreme >= 0), values at or below window_lo all display as
+   * window 0 (OctoWindowed: v - window_lo <= 0 exactly in float), so they cannot change the
+   * pixel either, even where they would raise the extremum itself. */
   (void)lo;
-  return extreme[k] >= hi;
+  return extreme[k] >= hi || (extreme[k] >= 0.0f && hi <= channels[k].window_lo);
 #else
   (void)channels;
   (void)hi;
