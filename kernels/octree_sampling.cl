@@ -61,10 +61,14 @@ OctoNodeHit OctoFindNode(__global const uint* nodes, OctoTreeGeometry g, float3 
   hit.index = (int4)(0);
   hit.level = l;
   hit.word0 = word0;
+  /* The path's node indices are the target level's shifted right: floor(floor(v / bs) / 2^k) =
+   * floor(v / (bs 2^k)), clamping included, so one integer division per axis serves every
+   * level. */
+  const int4 target_index = OctoNodeIndex(p, target, g);
   while (l > target) {
     const uint group = OctoNodeChildGroup(word0);
     if (group == 0u) break; /* A leaf of the current tree: its data cover the whole region. */
-    const int4 child = OctoNodeIndex(p, l - 1, g);
+    const int4 child = target_index >> (l - 1 - target);
     const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
                                (child.z & 1) * OCTO_OCTANT_Z);
     node = OctoChildNode(group, octant);

@@ -203,6 +203,7 @@ bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g, float3 p, int 
                   OctoRenderFrame f, __global const OctoChannelParams* channels,
                   const float* extreme, float3* lo, float3* hi, bool* near_face) {
   const int target = clamp(level, 0, g.root_level);
+  const int4 target_index = OctoNodeIndex(p, target, g); /* Shifted per level (OctoFindNode). */
   ulong node = 0;
   int l = g.root_level;
   int4 index = (int4)(0);
@@ -224,7 +225,7 @@ bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g, float3 p, int 
     const uint group = OctoNodeChildGroup(word0);
     if (l <= target || group == 0u) return false;
     /* Descend as OctoFindNode does (residency does not matter: ranges are always present). */
-    const int4 child = OctoNodeIndex(p, l - 1, g);
+    const int4 child = target_index >> (l - 1 - target);
     const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
                                (child.z & 1) * OCTO_OCTANT_Z);
     node = OctoChildNode(group, octant);
