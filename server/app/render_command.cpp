@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -154,6 +155,8 @@ double PositionOrCentre(const AxisPosition& item, const render::Box3& bounds) {
 struct RenderOutcome {
   render::RenderImage image;
   render::FrameStats stats;
+  double ms_last_frame = 0;     // Full frames: the last frame's wall time,
+  double cpu_s_last_frame = 0;  // and its process CPU time (every thread: std::clock).
 };
 
 // Full frames until one requests nothing (everything it needs is resident) or `max_frames`.
@@ -164,7 +167,11 @@ Result<RenderOutcome> RenderFullFrames(render::VolumeRenderer& renderer,
   RenderOutcome out;
   for (int frame = 0; frame < max_frames; ++frame) {
     render::FrameStats s;
+    const auto wall_start = std::chrono::steady_clock::now();
+    const std::clock_t cpu_start = std::clock();
     OCTO_ASSIGN_OR_RETURN(out.image, renderer.RenderFullFrame(camera, params, options, &s));
+    out.cpu_s_last_frame = static_cast<double>(std::clock() - cpu_start) / CLOCKS_PER_SEC;
+    out.ms_last_frame = MsSince(wall_start);
     out.stats.ms_kernel += s.ms_kernel;
     out.stats.ms_upload += s.ms_upload;
     out.stats.passes += s.passes > 0 ? s.passes : 1;
@@ -581,6 +588,8 @@ int RunRender(std::span<const std::string> args) {
     report.finished_fraction = s.finished_fraction;
     report.final = s.final;
     report.refine = refine;
+    report.ms_last_frame = outcome->ms_last_frame;
+    report.cpu_s_last_frame = outcome->cpu_s_last_frame;
     report.width = width;
     report.height = height;
     report.mode = std::string(render::RenderModeName(params.mode));

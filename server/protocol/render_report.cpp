@@ -23,6 +23,10 @@ std::string RenderReportJson(const RenderReport& r) {
   j["ms_load"] = r.ms_load;
   j["requests"] = r.requests;
   j["finished_fraction"] = r.finished_fraction;
+  if (r.ms_last_frame > 0) {
+    j["ms_last_frame"] = r.ms_last_frame;
+    j["cpu_s_last_frame"] = r.cpu_s_last_frame;
+  }
   j["octree"] = r.octree;
   j["out"] = r.out;
   if (!r.slice_axis.empty()) {

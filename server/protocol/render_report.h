@@ -23,6 +23,11 @@ struct RenderReport {
   double finished_fraction = 0;  // Rays finished after the last pass.
   bool final = false;            // The image is complete at the level of detail the screen needs.
   bool refine = false;           // --refine.
+  // Full frames only (printed when ms_last_frame > 0): wall time and process CPU time (all
+  // threads) of the last frame — with `final`, a frame that found everything it needed resident,
+  // i.e. what re-rendering the finished view costs.
+  double ms_last_frame = 0;
+  double cpu_s_last_frame = 0;
   int width = 0;
   int height = 0;
   std::string mode;        // "dvr", "mip", "minip"; "slice" for a slice view.

@@ -18,6 +18,7 @@
 
 #include <cstdint>
 #include <span>
+#include <vector>
 
 #include "octree/brick_geometry.h"
 
@@ -33,9 +34,18 @@ uint64_t CellsPerBrick(const octree::BrickGeometry& geometry);
 // uint32 words of one brick's cell ranges: CellsPerBrick * channels.
 uint64_t CellRangeWords(const octree::BrickGeometry& geometry);
 
+// Working memory of ComputeCellRanges, reused across calls (fresh memory per brick would cost
+// more in page faults than the computation itself).
+struct CellRangeScratch {
+  std::vector<uint16_t> z_lo, z_hi, y_lo, y_hi;
+};
+
 // Computes the cell ranges of one stored brick given as uint16 samples (the device layout,
 // geometry.brick_samples() of them) into `out` (CellRangeWords words).
 // REQUIRES: brick.size() == geometry.brick_samples(), out.size() == CellRangeWords(geometry).
+void ComputeCellRanges(const octree::BrickGeometry& geometry, std::span<const uint16_t> brick,
+                       std::span<uint32_t> out, CellRangeScratch* scratch);
+// The same with its own scratch memory.
 void ComputeCellRanges(const octree::BrickGeometry& geometry, std::span<const uint16_t> brick,
                        std::span<uint32_t> out);
 

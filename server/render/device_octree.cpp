@@ -93,6 +93,7 @@ struct DeviceOctree::Impl {
   // --- Cell ranges (render/cell_ranges.h): per slot, cell_words words; the host mirror is
   // computed from each brick's device bytes as it is uploaded and written after its bricks. ---
   uint64_t cell_words = 0;
+  CellRangeScratch cell_scratch;
   std::vector<uint32_t> cell_mirror;  // slot_count * cell_words.
   ClMem cell_ranges_buffer;
   uint32_t cells_dirty_lo = 0;  // Slots [lo, hi) whose mirror changed since the last write.
@@ -451,7 +452,7 @@ struct DeviceOctree::Impl {
     const std::span<const uint16_t> samples(reinterpret_cast<const uint16_t*>(bytes.data()),
                                             bytes.size() / 2);
     ComputeCellRanges(tree->geometry(), samples,
-                      std::span(cell_mirror).subspan(slot * cell_words, cell_words));
+                      std::span(cell_mirror).subspan(slot * cell_words, cell_words), &cell_scratch);
     if (cells_dirty_lo == cells_dirty_hi) {
       cells_dirty_lo = slot;
       cells_dirty_hi = slot + 1;

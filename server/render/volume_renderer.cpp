@@ -317,6 +317,19 @@ Refinement::~Refinement() = default;
 
 VolumeRenderer::~VolumeRenderer() = default;
 
+double NextTimeBias(double bias, double kernel_ms, double target_ms, int max_bias) {
+  // About half the cost per level of bias, so log2 of the ratio is the bias step that would hit
+  // the target; damped. Coarser as soon as a frame is over the target (beyond a dead band against
+  // timing noise), finer only with room for a whole level (under half the target): where every
+  // ray changes level at once (orthographic views) the cost jumps, and a symmetric band would
+  // flip between a frame over the target and one far under it.
+  const double error = std::log2(kernel_ms / target_ms);
+  if (error > 0.25 || error < -1.0) {
+    bias = std::clamp(bias + 0.75 * error, 0.0, static_cast<double>(max_bias));
+  }
+  return bias;
+}
+
 Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeContext* context,
                                                                ProgramCache* programs,
                                                                DeviceOctree* device_octree,
@@ -453,13 +466,8 @@ Result<RenderImage> VolumeRenderer::RenderFullFrame(const Camera& camera,
     // Room for the next finer level: up to 8x the bricks plus these as their ancestors.
     --lod.pressure_bias;
   }
-  // Frame-time target: about half the cost per level of bias, so log2 of the ratio is the bias
-  // step that would hit the target; damped, with a dead band against timing noise.
   if (options.target_frame_ms > 0 && local.ms_kernel > 0) {
-    const double error = std::log2(local.ms_kernel / options.target_frame_ms);
-    if (std::abs(error) > 0.25) {
-      lod.time_bias = std::clamp(lod.time_bias + 0.75 * error, 0.0, static_cast<double>(max_bias));
-    }
+    lod.time_bias = NextTimeBias(lod.time_bias, local.ms_kernel, options.target_frame_ms, max_bias);
   }
   if (lod.pressure_bias > 0 || lod.time_bias > 0) {
     view_lod_[options.view] = lod;

@@ -54,7 +54,9 @@
 // Frame-time target (full frames, FrameOptions::target_frame_ms): the cost of a frame falls about
 // by half per level of bias (samples per ray follow the level's voxel size; the pixels stay), so
 // after each frame the view's time bias moves by 0.75 * log2(kernel ms / target) when that is
-// more than 0.25 away from 0 (a dead band against timing noise), clamped to [0, root level]. The
+// above 0.25 (a dead band against timing noise) or below -1 (finer only with room for a whole
+// level, so a cost that jumps when every ray changes level at once cannot make the bias
+// oscillate around the target), clamped to [0, root level]. The
 // fractional bias changes the level only where the footprint crosses the shifted threshold, so
 // quality degrades smoothly across the image. Interaction stays at the target; refinement (which
 // ignores both adaptive biases) delivers the full detail when the user stops.
@@ -153,6 +155,10 @@ class Refinement {
   std::unique_ptr<State> state_;
   FrameStats stats_;
 };
+
+// The view's time bias after a full frame whose kernels took `kernel_ms` against a target of
+// `target_ms` (the frame-time target above). REQUIRES: kernel_ms > 0, target_ms > 0.
+double NextTimeBias(double bias, double kernel_ms, double target_ms, int max_bias);
 
 class VolumeRenderer {
  public:

@@ -248,6 +248,11 @@ TEST_F(RenderCommandTest, FullFramesJpegAndStandardViews) {
   EXPECT_GE(j["passes"].get<int>(), 1);
   EXPECT_EQ(j["final"], true);  // A tiny volume: everything fits, a frame ends requesting nothing.
   EXPECT_EQ(j["mode"], "dvr");
+  // The last (steady) frame's own times, within the whole run's.
+  ASSERT_TRUE(j.contains("ms_last_frame"));
+  EXPECT_GT(j["ms_last_frame"].get<double>(), 0);
+  EXPECT_LE(j["ms_last_frame"].get<double>(), j["ms_total"].get<double>());
+  EXPECT_GE(j["cpu_s_last_frame"].get<double>(), 0);
   const std::vector<uint8_t> jpeg = testing::ReadAll(out);
   tjhandle tj = tjInitDecompress();
   int w = 0, h = 0, subsampling = 0, colourspace = 0;

@@ -459,5 +459,27 @@ TEST(VolumeRendererLodTest, FrameTimeTargetSteersTheBias) {
   EXPECT_EQ(stats.lod_bias_used, 0.5);
 }
 
+// The controller alone (no timing): coarser when over the target, finer only with room for a
+// whole level, so a cost that jumps by 2x between two biases settles on the cheaper one instead
+// of alternating (seen in bench render: 150 ms and 66 ms frames against a 100 ms target).
+TEST(VolumeRendererLodTest, TimeBiasSettlesWhereTheCostJumps) {
+  // 150 ms at biases below 0.4, 66 ms from 0.4: the bias climbs past 0.4 and stays there.
+  double bias = 0;
+  for (int frame = 0; frame < 20; ++frame) {
+    const double ms = bias < 0.4 ? 150 : 66;
+    const double next = NextTimeBias(bias, ms, 100, 3);
+    if (frame > 3) {
+      EXPECT_GE(next, 0.4) << frame;
+    }
+    bias = next;
+  }
+  EXPECT_EQ(NextTimeBias(0.5, 110, 100, 3), 0.5);  // Dead band.
+  EXPECT_EQ(NextTimeBias(0.5, 60, 100, 3), 0.5);   // Under the target, but no room for a level.
+  EXPECT_LT(NextTimeBias(2, 30, 100, 3), 2);       // Room: finer.
+  EXPECT_GT(NextTimeBias(0, 300, 100, 3), 1);      // Far over: coarser by about a level or more.
+  EXPECT_EQ(NextTimeBias(3, 900, 100, 3), 3);      // Clamped to the root level.
+  EXPECT_EQ(NextTimeBias(0.2, 1, 100, 3), 0);      // And to 0.
+}
+
 }  // namespace
 }  // namespace octoscope::render
