@@ -117,7 +117,7 @@ float4 OctoTransfer(__global const OctoChannelParams* ch, __global const float4*
 }
 
 /* A segment's opacity-correction ratio (its length over the reference spacing), prepared once
- * per sample for all its channels: `squarings` = s >= 0 when the ratio is 2^s (within a few ulps:
+ * per sample for all its channels: `squarings` = s >= 0 when the ratio is 2^s (within 8 ulps:
  * full segments of level s at the reference step), else -1. */
 typedef struct OctoRatio {
   float ratio;

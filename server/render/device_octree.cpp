@@ -947,7 +947,6 @@ cl_mem DeviceOctree::request_flags() const { return impl_->request_flags.get(); 
 cl_mem DeviceOctree::request_list() const { return impl_->request_list.get(); }
 cl_mem DeviceOctree::slot_used() const { return impl_->slot_used_buffer.get(); }
 cl_mem DeviceOctree::cell_ranges() const { return impl_->cell_ranges_buffer.get(); }
-std::span<const uint32_t> DeviceOctree::cell_range_mirror() const { return impl_->cell_mirror; }
 uint64_t DeviceOctree::cell_range_words() const { return impl_->cell_words; }
 
 int DeviceOctree::allocation_count() const { return static_cast<int>(impl_->bricks.size()); }

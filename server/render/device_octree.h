@@ -246,8 +246,6 @@ class DeviceOctree {
   uint64_t device_brick_bytes() const;
   // The transfer Upload uses (never kAuto).
   UploadPath upload_path() const;
-  // The host mirror of the cell ranges (what the device holds after the last Upload).
-  std::span<const uint32_t> cell_range_mirror() const;
   // Host copy of the slot stamps (slot_used) as of the last ReadFeedback / Upload.
   std::span<const uint32_t> slot_stamps() const;
 
