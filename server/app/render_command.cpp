@@ -24,6 +24,7 @@
 #include "io/open_volume.h"
 #include "protocol/render_json.h"
 #include "protocol/render_report.h"
+#include "render/bilinear_upsample.h"
 #include "render/camera.h"
 #include "render/device.h"
 #include "render/device_octree.h"
@@ -218,6 +219,7 @@ struct SliceJob {
   std::string device;         // DeviceInfo::ToString().
   std::string octree_source;  // LoadedOctree::source.
   std::chrono::steady_clock::time_point start;
+  uint64_t bricks_preloaded = 0;  // By UploadCoarseLevels, before the first frame.
 };
 
 // Renders, writes and reports the slice of `job` (the --slice path of RunRender); returns the exit
@@ -257,6 +259,7 @@ int RenderSlice(const SliceJob& job, const render::ComputeContext* context,
     report.ms_load = ms_load;  // ms_kernel and ms_upload are not measured apart for slices: 0.
     report.passes = stats.frames;
     report.bricks_uploaded = stats.bricks_uploaded;
+    report.bricks_preloaded = job.bricks_preloaded;
     report.samples = stats.samples;
     report.requests = stats.requests;
     report.finished_fraction = stats.converged ? 1 : 0;
@@ -320,6 +323,10 @@ int RunRender(std::span<const std::string> args) {
   flags.AddValue("device", "PREF", "OpenCL device: auto, gpu, cpu, N, P:D or a name", "auto");
   flags.AddValue("brick-buffer-mb", "N", "device brick buffer in MiB", "512");
   flags.AddValue("lod-bias", "F", "level-of-detail bias (+1: half resolution)", "0");
+  flags.AddValue("scale", "F",
+                 "render F x the size per axis (1/16..1) and upsample bilinearly to --size,\n"
+                 "                            as the browser shows an interactive frame",
+                 "1");
   flags.AddValue("step", "F", "sampling step in voxels (overrides the parameter file)", "1");
   flags.AddValue("budget-ms", "N", "upload budget per frame / pass in ms", "150");
   flags.AddValue("max-passes", "N",
@@ -360,6 +367,12 @@ int RunRender(std::span<const std::string> args) {
   auto lod_bias = flags.GetDouble("lod-bias", 0);
   if (!lod_bias.ok()) return Usage(lod_bias.status().message(), flags);
   if (!(*lod_bias >= -8 && *lod_bias <= 16)) return Usage("--lod-bias must be in [-8, 16]", flags);
+  auto scale = flags.GetDouble("scale", 1);
+  if (!scale.ok()) return Usage(scale.status().message(), flags);
+  if (!(*scale >= 1.0 / 16 && *scale <= 1)) return Usage("--scale must be in [1/16, 1]", flags);
+  // The size the rays are cast at (the image is upsampled to width x height).
+  const int render_width = std::max(1, static_cast<int>(std::lround(width * *scale)));
+  const int render_height = std::max(1, static_cast<int>(std::lround(height * *scale)));
   std::optional<double> step;
   if (flags.Has("step")) {
     auto s = flags.GetDouble("step", 1);
@@ -391,6 +404,10 @@ int RunRender(std::span<const std::string> args) {
     if (flags.Has("slice-planes")) {
       return Usage("--slice-planes draws into 3-D views: it cannot be used with --slice", flags);
     }
+    if (flags.Has("scale")) return Usage("--scale applies to 3-D views, not to --slice", flags);
+  }
+  if (flags.Has("scale") && flags.Has("cpu-reference")) {
+    return Usage("--cpu-reference renders at the full size: drop --scale", flags);
   }
   std::optional<double> slice_zoom;
   if (flags.Has("slice-zoom")) {
@@ -455,13 +472,19 @@ int RunRender(std::span<const std::string> args) {
   if (step) params.step_voxels = *step;
   const render::Vec3 spacing = render::PhysicalSpacing(info);
   const render::Box3 bounds = render::PhysicalBounds(info.size, spacing);
-  std::optional<render::Camera> camera;  // A 3-D view's; a slice has none.
+  // A 3-D view's cameras (a slice has none): at the output size, and at the size rendered.
+  std::optional<render::Camera> camera, render_camera;
   if (!slice) {
-    Result<render::Camera> made =
-        standard_view ? render::Camera::Standard(*standard_view, *projection, bounds, width, height)
-                      : protocol::ParseCameraJson(*camera_text, *projection, width, height);
+    const auto make = [&](int w, int h) {
+      return standard_view ? render::Camera::Standard(*standard_view, *projection, bounds, w, h)
+                           : protocol::ParseCameraJson(*camera_text, *projection, w, h);
+    };
+    Result<render::Camera> made = make(width, height);
     if (!made.ok()) return Fail(standard_view ? input : view, made.status());
     camera = std::move(*made);
+    made = make(render_width, render_height);
+    if (!made.ok()) return Fail(standard_view ? input : view, made.status());
+    render_camera = std::move(*made);
   }
   std::vector<render::SlicePlane> planes;
   for (const AxisPosition& item : plane_items) {
@@ -513,6 +536,12 @@ int RunRender(std::span<const std::string> args) {
   device_options.brick_buffer_bytes = static_cast<uint64_t>(*brick_buffer_mb) << 20;
   auto device_octree = render::DeviceOctree::Create(&*context, &tree.octree(), device_options);
   if (!device_octree.ok()) return Fail(device->name, device_octree.status());
+  // The coarsest levels at once, so that the first frame shows data, not node averages.
+  render::UploadStats preload;
+  if (Status s = (*device_octree)->UploadCoarseLevels(render::kCoarseLevelBytes, &preload);
+      !s.ok()) {
+    return Fail(input, s);
+  }
   // 6a. A slice view: its own renderer, frames until converged, written and reported there.
   if (slice) {
     SliceJob job;
@@ -532,6 +561,7 @@ int RunRender(std::span<const std::string> args) {
     job.device = device->ToString();
     job.octree_source = tree.source;
     job.start = start;
+    job.bricks_preloaded = preload.uploaded;
     return RenderSlice(job, &*context, &programs, device_octree->get(), spacing, params);
   }
   auto renderer =
@@ -549,21 +579,23 @@ int RunRender(std::span<const std::string> args) {
   Result<RenderOutcome> outcome = RenderOutcome{};
   if (refine) {
     render::FrameStats stats;
-    auto image = (*renderer)->Render(*camera, params, options, &stats);
+    auto image = (*renderer)->Render(*render_camera, params, options, &stats);
     if (image.ok()) {
       outcome = RenderOutcome{std::move(*image), std::move(stats)};
     } else {
       outcome = image.status();
     }
   } else {
-    outcome = RenderFullFrames(**renderer, *camera, params, options,
+    outcome = RenderFullFrames(**renderer, *render_camera, params, options,
                                *max_passes > 0 ? static_cast<int>(*max_passes) : kMaxFullFrames);
   }
   if (!outcome.ok()) return Fail(input, outcome.status());
   const double ms_total = MsSince(render_start);
 
-  // 7. The slice planes over the finished image (an overlay: the volume does not hide them).
+  // 7. Upsampled to the output size (--scale), then the slice planes over it (an overlay: the
+  //    volume does not hide them).
   render::RenderImage& image = outcome->image;
+  image = render::BilinearUpsample(image, width, height);
   if (Status s = render::DrawSlicePlanes(&image, *camera, bounds, planes); !s.ok()) {
     return Fail(input, s);
   }
@@ -582,6 +614,8 @@ int RunRender(std::span<const std::string> args) {
     report.ms_load = ms_load;
     report.passes = s.passes;
     report.bricks_uploaded = s.bricks_uploaded;
+    report.bricks_preloaded = preload.uploaded;
+    report.scale = *scale;
     report.samples = s.samples;
     report.samples_skipped = s.samples_skipped;
     report.requests = s.requests;

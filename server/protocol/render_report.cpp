@@ -9,11 +9,13 @@ std::string RenderReportJson(const RenderReport& r) {
   j["ms_total"] = r.ms_total;
   j["passes"] = r.passes;
   j["bricks_uploaded"] = r.bricks_uploaded;
+  j["bricks_preloaded"] = r.bricks_preloaded;
   j["samples"] = r.samples;
   j["samples_skipped"] = r.samples_skipped;
   j["final"] = r.final;
   j["width"] = r.width;
   j["height"] = r.height;
+  if (r.scale != 1) j["scale"] = r.scale;
   j["mode"] = r.mode;
   j["device"] = r.device;
   j["projection"] = r.projection;

@@ -17,6 +17,8 @@ struct RenderReport {
   double ms_load = 0;    // Opening (or building) the octree and the device set-up.
   int passes = 0;        // Kernel passes (full frames, or refinement passes).
   uint64_t bricks_uploaded = 0;
+  uint64_t bricks_preloaded = 0;  // The coarsest levels, uploaded before the first frame.
+  double scale = 1;               // --scale: rays cast at scale x the size per axis, upsampled.
   uint64_t samples = 0;          // Channel samples taken, all passes.
   uint64_t samples_skipped = 0;  // Channel samples jumped over by empty-space skipping.
   uint64_t requests = 0;         // Node requests read back, all passes.

@@ -932,6 +932,31 @@ Status DeviceOctree::UploadAll(std::span<const uint32_t> nodes, uint32_t protect
   return Upload(nodes, budget, stats);
 }
 
+Status DeviceOctree::UploadCoarseLevels(uint64_t max_bytes, UploadStats* stats) {
+  const uint64_t max_bricks =
+      std::min<uint64_t>(max_bytes / impl_->device_brick_bytes, slot_count_ / 4);
+  std::vector<uint32_t> chosen;
+  std::vector<uint32_t> level = {0};  // The root.
+  // Level by level: a level's brick-owning nodes join only when all of them fit.
+  while (!level.empty()) {
+    std::vector<uint32_t> bricks, next;
+    for (const uint32_t id : level) {
+      const std::optional<octree::NodeSnapshot> node = octree_->GetNode(id);
+      if (!node.has_value()) continue;  // Deleted meanwhile (construction goes on).
+      if (node->has_brick()) bricks.push_back(id);
+      if (node->has_children()) {
+        for (uint32_t octant = 0; octant < 8; ++octant) next.push_back(8 * node->child_group + octant);
+      }
+    }
+    if (chosen.size() + bricks.size() > max_bricks) break;
+    chosen.insert(chosen.end(), bricks.begin(), bricks.end());
+    level = std::move(next);
+  }
+  if (stats != nullptr) *stats = {};
+  if (chosen.empty()) return Status::Ok();
+  return UploadAll(chosen, /*protect_frame=*/0, stats);  // 0: no slot is evictable.
+}
+
 cl_mem DeviceOctree::node_buffer() const { return impl_->node_buffer.get(); }
 
 std::array<cl_mem, kMaxBrickAllocations> DeviceOctree::brick_buffers() const {

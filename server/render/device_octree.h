@@ -132,6 +132,9 @@ struct DeviceOctreeOptions {
   uint64_t staging_bytes = uint64_t{32} << 20;
 };
 inline constexpr uint32_t kMinBrickSlots = 8;
+// What a fresh view preloads (UploadCoarseLevels): 32 MiB is the 1 + 8 coarsest bricks of a
+// 3-channel 64^3 tree, or 1 + 8 + 64 of a 1-channel 32^3 one; read in well under a second.
+inline constexpr uint64_t kCoarseLevelBytes = uint64_t{32} << 20;
 
 // What one frame asks of the upload manager.
 struct UploadBudget {
@@ -193,6 +196,14 @@ class DeviceOctree {
   // slots allow: for tests and for warming a view. Same eviction rules as Upload.
   Status UploadAll(std::span<const uint32_t> nodes, uint32_t protect_frame,
                    UploadStats* stats = nullptr);
+
+  // Makes the coarsest levels resident, whole levels at a time from the root down, while their
+  // bricks together take at most `max_bytes` of the brick buffer and a quarter of its slots: what
+  // a view shows before its first frame has asked for anything (full frames fall back to a
+  // resident ancestor up to two levels above the wanted node). Reads as Upload does (kResidentOnly
+  // skips and records pages not in RAM, for TakeMissingPages). Evicts nothing (fills free slots
+  // only): meant for a fresh mirror, before its first frame.
+  Status UploadCoarseLevels(uint64_t max_bytes, UploadStats* stats = nullptr);
 
   // Frees the slots reserved for `owner` (e.g. when its refinement ends); they stay resident.
   void ReleaseReservations(uint64_t owner);

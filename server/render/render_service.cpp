@@ -519,6 +519,8 @@ void RenderService::Worker::Rebalance() {
       Status resized;
       try {
         resized = ds.mirror->device->ResizeBrickBuffer(ds.share);
+        // Resizing dropped every brick: the coarsest levels come back at once.
+        if (resized.ok()) resized = ds.mirror->device->UploadCoarseLevels(kCoarseLevelBytes);
       } catch (const std::exception& e) {
         resized = ResourceExhaustedError(std::string("resizing the brick buffer: ") + e.what());
       }
@@ -792,30 +794,22 @@ Result<Mirror*> RenderService::Worker::MirrorFor(DatasetKey key) {
   DeviceOctreeOptions options = s.options_.device_octree;
   options.brick_buffer_bytes = ds.share;  // At least kMinBrickSlots bricks (DeviceOctree).
   options.brick_reads = BrickReads::kResidentOnly;
-  Status status;
   auto mirror = std::make_unique<Mirror>();
+  const auto create = [&]() -> Status {
+    OCTO_ASSIGN_OR_RETURN(mirror->device, DeviceOctree::Create(s.context_, ds.octree, options));
+    // The coarsest levels whose pages are in RAM at once (the others are prefetched after the
+    // first frame): a view's first frame shows data, not node averages.
+    OCTO_RETURN_IF_ERROR(mirror->device->UploadCoarseLevels(kCoarseLevelBytes));
+    OCTO_ASSIGN_OR_RETURN(mirror->volume, VolumeRenderer::Create(s.context_, programs,
+                                                                 mirror->device.get(), ds.spacing));
+    OCTO_ASSIGN_OR_RETURN(mirror->slice,
+                          SliceRenderer::Create(s.context_, programs, mirror->device.get(),
+                                                ds.spacing, s.options_.slice_build_options));
+    return Status::Ok();
+  };
+  Status status;
   try {
-    Result<std::unique_ptr<DeviceOctree>> device =
-        DeviceOctree::Create(s.context_, ds.octree, options);
-    if (device.ok()) {
-      mirror->device = std::move(*device);
-      Result<std::unique_ptr<VolumeRenderer>> volume =
-          VolumeRenderer::Create(s.context_, programs, mirror->device.get(), ds.spacing);
-      if (volume.ok()) {
-        mirror->volume = std::move(*volume);
-        Result<std::unique_ptr<SliceRenderer>> slice = SliceRenderer::Create(
-            s.context_, programs, mirror->device.get(), ds.spacing, s.options_.slice_build_options);
-        if (slice.ok()) {
-          mirror->slice = std::move(*slice);
-        } else {
-          status = slice.status();
-        }
-      } else {
-        status = volume.status();
-      }
-    } else {
-      status = device.status();
-    }
+    status = create();
   } catch (const std::bad_alloc&) {
     status = ResourceExhaustedError("out of memory");
   } catch (const std::exception& e) {

@@ -354,8 +354,8 @@ Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeCont
   r->impl_->own_buffers = std::make_unique<FrameBuffers>(context);
   r->device_octree_ = device_octree;
   r->spacing_ = spacing_um;
-  // The default mode's full-frame program is built now, so a broken kernel fails early.
-  OCTO_RETURN_IF_ERROR(r->impl_->Kernel(RenderMode::kDvr, false, "").status());
+  // No program is built here: a frame builds the variant it uses (a first image after opening
+  // a file would otherwise also wait for one it does not use).
   return r;
 }
 

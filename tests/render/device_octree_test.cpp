@@ -1108,6 +1108,76 @@ TEST(DeviceOctreeTest, ResidentOnlyReadsNeverLoadAPageAndNameTheMissingOnes) {
   }
 }
 
+TEST(DeviceOctreeTest, CoarseLevelsAreUploadedWholeLevelsWithinTheCap) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 2));
+  ASSERT_NE(scene, nullptr);
+  Octree& tree = *scene->tree;
+  const int root = tree.geometry().root_level();
+  ASSERT_GE(root, 2);
+  const std::vector<uint32_t> top = {0};
+  const std::vector<uint32_t> second = Ids(Bricked(tree, root - 1));
+  const std::vector<uint32_t> third = Ids(Bricked(tree, root - 2));
+  ASSERT_GT(second.size(), 1u);
+  const auto resident_exactly = [&](const DeviceOctree& dev, const std::vector<uint32_t>& ids) {
+    EXPECT_EQ(dev.resident_bricks(), ids.size());
+    for (uint32_t id : ids) {
+      const std::optional<uint32_t> slot = dev.SlotOf(id);
+      ASSERT_TRUE(slot.has_value()) << id;
+      EXPECT_EQ(DeviceBrick(dev, *slot), HostBrick(tree, id)) << id;
+    }
+  };
+  std::vector<uint32_t> two_levels = top;
+  two_levels.insert(two_levels.end(), second.begin(), second.end());
+  {
+    // Room for exactly the two coarsest levels: both, and nothing of the third.
+    auto dev = MakeDevice(&tree);
+    ASSERT_NE(dev, nullptr);
+    ASSERT_GE(dev->slot_count() / 4, two_levels.size() + third.size());
+    UploadStats stats;
+    ASSERT_TRUE(dev->UploadCoarseLevels(two_levels.size() * dev->device_brick_bytes(), &stats).ok());
+    EXPECT_EQ(stats.uploaded, two_levels.size());
+    resident_exactly(*dev, two_levels);
+    // The node buffer says so too.
+    EXPECT_EQ(
+        FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+        -1);
+  }
+  {
+    // One brick short of the second level: the root alone (levels are never split).
+    auto dev = MakeDevice(&tree);
+    ASSERT_NE(dev, nullptr);
+    ASSERT_TRUE(
+        dev->UploadCoarseLevels((two_levels.size() - 1) * dev->device_brick_bytes()).ok());
+    resident_exactly(*dev, top);
+  }
+  {
+    // At most a quarter of the slots, whatever the bytes allow.
+    DeviceOctreeOptions options;
+    options.brick_buffer_bytes = 4 * second.size() * tree.geometry().brick_samples() * 2;
+    auto dev = MakeDevice(&tree, options);
+    ASSERT_NE(dev, nullptr);
+    ASSERT_LT(dev->slot_count() / 4, two_levels.size());
+    ASSERT_TRUE(dev->UploadCoarseLevels(uint64_t{1} << 30).ok());
+    resident_exactly(*dev, top);
+  }
+  {
+    // Resident-only reads with nothing in RAM: nothing uploaded, the pages named for a prefetch.
+    ASSERT_TRUE(tree.Flush().ok());
+    ASSERT_TRUE(scene->cache->SetBudget(0).ok());
+    ASSERT_TRUE(scene->cache->SetBudget(uint64_t{1} << 30).ok());
+    DeviceOctreeOptions options;
+    options.brick_reads = BrickReads::kResidentOnly;
+    auto dev = MakeDevice(&tree, options);
+    ASSERT_NE(dev, nullptr);
+    UploadStats stats;
+    ASSERT_TRUE(dev->UploadCoarseLevels(uint64_t{1} << 30, &stats).ok());
+    EXPECT_EQ(stats.uploaded, 0u);
+    EXPECT_GE(stats.unavailable, two_levels.size());
+    EXPECT_FALSE(dev->TakeMissingPages().empty());
+  }
+}
+
 TEST(DeviceOctreeTest, ResizingTheBrickBufferDropsResidencyAndKeepsWorking) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   auto scene = Scene(NoiseSpec(volume::DataType::kUint16, 1));

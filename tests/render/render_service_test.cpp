@@ -104,13 +104,15 @@ Camera Standard(const RenderScene& scene, StandardView view, int width, int heig
   return *camera;
 }
 
-// A render of one request without the service (its own DeviceOctree on the shared context).
+// A render of one request without the service (its own DeviceOctree on the shared context,
+// with the coarse levels preloaded as the service's mirrors have them).
 RenderImage DirectVolume(RenderScene& scene, const Camera& camera, const RenderParams& params,
                          const FrameOptions& options, const DeviceOctreeOptions& device = {}) {
   const auto& env = SharedClTestEnv();
   auto dev = DeviceOctree::Create(env.context, scene.tree.get(), device);
   EXPECT_TRUE(dev.ok()) << dev.status().ToString();
   if (!dev.ok()) return {};
+  EXPECT_TRUE((*dev)->UploadCoarseLevels(kCoarseLevelBytes).ok());
   auto renderer = VolumeRenderer::Create(env.context, env.programs, dev->get(), scene.spec.spacing);
   EXPECT_TRUE(renderer.ok()) << renderer.status().ToString();
   if (!renderer.ok()) return {};
@@ -292,7 +294,8 @@ TEST(RenderServiceTest, OwnsItsContextAndPrograms) {
   auto scene = Scene(NoiseSpec({32, 32, 24}));
   ASSERT_NE(scene, nullptr);
   const Camera camera = Standard(*scene, StandardView::kZ, 32, 32);
-  // The first full frame (nothing resident yet) is deterministic: compare with a direct one.
+  // The first full frame (only the coarse levels resident) is deterministic: compare with a
+  // direct one.
   const RenderImage direct = DirectVolume(*scene, camera, Mip(), FullFrame());
   auto context = ComputeContext::Create(SharedClTestEnv().context->device());
   ASSERT_TRUE(context.ok()) << context.status().ToString();
@@ -411,6 +414,31 @@ TEST(RenderServiceTest, FullFrameAndFinalOnlyRefinement) {
             StatusCode::kNotFound);
   EXPECT_EQ(service->OpenView(service.dataset, FrameCallback()).status().code(),
             StatusCode::kInvalidArgument);
+}
+
+TEST(RenderServiceTest, AViewsFirstFrameShowsTheCoarseLevelsAtOnce) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto scene = Scene(NoiseSpec({64, 64, 64}));  // 16^3 bricks: levels 0..2 (64, 8, 1 bricks).
+  ASSERT_NE(scene, nullptr);
+  ASSERT_EQ(scene->tree->geometry().root_level(), 2);
+  const Camera camera = ZView(0, 0, 64);
+  FrameOptions coarse = FullFrame();
+  coarse.lod_bias = 1;  // Level 1: preloaded with the root when the mirror was made.
+  FrameOptions refine = Refine();
+  refine.lod_bias = 1;
+  const RenderImage direct = DirectVolume(*scene, camera, Mip(), refine);
+  Served service = MakeService(*scene);
+  ASSERT_NE(service.service, nullptr);
+  FrameSink sink;
+  const ViewId view = service.Open(sink.Callback());
+  ASSERT_TRUE(service->Submit(view, VolumeRequest(camera, coarse, 1)).ok());
+  std::optional<FrameResult> first = sink.WaitFinal(1);
+  ASSERT_TRUE(first.has_value());
+  ASSERT_TRUE(first->status.ok()) << first->status.ToString();
+  // The very first frame needs nothing more: it is the refined image at that level.
+  EXPECT_EQ(first->stats.requests, 0u);
+  EXPECT_EQ(first->stats.bricks_uploaded, 0u);
+  EXPECT_LE(CompareImages(first->image, direct).max_abs, 1e-6);
 }
 
 TEST(RenderServiceTest, LatestStateWins) {

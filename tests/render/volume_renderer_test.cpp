@@ -311,6 +311,39 @@ TEST(VolumeRendererTest, FullFrameFallbackUsesWantedAverages) {
   EXPECT_GE(stats.requests, 64u);
 }
 
+TEST(VolumeRendererTest, PreloadedCoarseLevelsMakeTheFirstFrameFinalAtTheirLevel) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    SCOPED_TRACE(RenderModeName(mode));
+    auto rig = MakeRig(NoiseSpec({64, 64, 64}, 2, {8, 8, 8}));
+    ASSERT_NE(rig, nullptr);
+    ASSERT_EQ(rig->device->geometry().root_level(), 3);
+    const Camera camera = Standard(*rig, StandardView::kIso, Projection::kPerspective, 64, 64);
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    // A fresh mirror: its first frame at the root level shows node averages and asks for bricks.
+    auto fresh = MakeRig(NoiseSpec({64, 64, 64}, 2, {8, 8, 8}));
+    ASSERT_NE(fresh, nullptr);
+    FrameOptions coarse;
+    coarse.lod_bias = 3;
+    FrameStats stats;
+    ASSERT_TRUE(fresh->renderer->RenderFullFrame(camera, params, coarse, &stats).ok());
+    EXPECT_FALSE(stats.final);
+    // With the two coarsest levels (1 + 8 bricks) preloaded it is final at once: the image the
+    // refinement gives at that level.
+    UploadStats upload;
+    ASSERT_TRUE(rig->device->UploadCoarseLevels(9 * rig->device->device_brick_bytes(), &upload).ok());
+    EXPECT_EQ(upload.uploaded, 9u);
+    Result<RenderImage> first = rig->renderer->RenderFullFrame(camera, params, coarse, &stats);
+    ASSERT_TRUE(first.ok()) << first.status().ToString();
+    EXPECT_TRUE(stats.final);
+    EXPECT_EQ(stats.requests, 0u);
+    FrameOptions refine = Refine();
+    refine.lod_bias = 3;
+    const RenderImage refined = Gpu(*rig, camera, params, refine);
+    EXPECT_LE(CompareImages(*first, refined).max_abs, 1e-6);
+  }
+}
+
 TEST(VolumeRendererTest, WorkingSetLargerThanBrickBuffer) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   const SceneSpec spec = NoiseSpec({32, 32, 32}, 1, {8, 8, 8});
