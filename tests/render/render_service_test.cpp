@@ -609,8 +609,19 @@ TEST(RenderServiceTest, DisjointViewsShareATinyBrickBuffer) {
   };
   const ViewId view_a = service.Open(logged(sink_a, 'A'));
   const ViewId view_b = service.Open(logged(sink_b, 'B'));
+  // Both requests wait until both are in (the render thread holds in a third view's callback),
+  // so they compete from their first pass however this thread is scheduled.
+  std::promise<void> entered, gate;
+  std::shared_future<void> gate_open = gate.get_future().share();
+  const ViewId holder = service.Open([&entered, gate_open](FrameResult) {
+    entered.set_value();
+    gate_open.wait();
+  });
+  ASSERT_TRUE(service->Submit(holder, VolumeRequest(ZView(0, 0, 4), FullFrame(), 1)).ok());
+  entered.get_future().wait();
   ASSERT_TRUE(service->Submit(view_a, VolumeRequest(a, Refine(), 1)).ok());
   ASSERT_TRUE(service->Submit(view_b, VolumeRequest(b, Refine(), 1)).ok());
+  gate.set_value();
   std::optional<FrameResult> final_a = sink_a.WaitFinal(1);
   std::optional<FrameResult> final_b = sink_b.WaitFinal(1);
   ASSERT_TRUE(final_a.has_value() && final_b.has_value());
