@@ -116,6 +116,7 @@ struct DeviceOctree::Impl {
 
   // --- Non-blocking reads (BrickReads::kResidentOnly). ---
   bool resident_only = false;
+  std::function<Status(std::string_view)> transfer_fault;  // DeviceOctreeOptions'.
   std::vector<uint64_t> missing_pages;  // Pages of skipped bricks, in first-seen order.
   std::unordered_set<uint64_t> missing_seen;
 
@@ -510,6 +511,7 @@ Result<std::unique_ptr<DeviceOctree>> DeviceOctree::Create(const ComputeContext*
   self->max_allocation_bytes_ = options.max_allocation_bytes;
   m.request_capacity = options.request_capacity;
   m.resident_only = options.brick_reads == BrickReads::kResidentOnly;
+  m.transfer_fault = options.transfer_fault;
   m.mapped_path =
       options.upload_path == UploadPath::kMapped ||
       (options.upload_path == UploadPath::kAuto && context->device().type == DeviceType::kCpu);
@@ -911,9 +913,18 @@ Status DeviceOctree::Upload(std::span<const uint32_t> requested, const UploadBud
     }
   }
   // The bytes and their cell ranges are on the device (unmapped / written) before the entries
-  // say so.
-  if (Status finished = m.FinishTransfers(); status.ok()) status = std::move(finished);
-  if (Status cells = m.WriteCells(); status.ok()) status = std::move(cells);
+  // say so; when either transfer failed, none of this call's bricks can be trusted.
+  Status finished = m.FinishTransfers();
+  if (finished.ok() && m.transfer_fault) finished = m.transfer_fault("bricks");
+  Status cells = m.transfer_fault ? m.transfer_fault("cells") : Status::Ok();
+  if (cells.ok()) cells = m.WriteCells();
+  if (!finished.ok() || !cells.ok()) {
+    for (uint32_t slot = 0; slot < slot_count_; ++slot) {
+      if (filled_now[slot] != 0) m.ReleaseSlot(slot, true);
+    }
+    s.uploaded = s.reuploaded = s.reserved = s.bytes = 0;
+  }
+  if (status.ok()) status = !finished.ok() ? std::move(finished) : std::move(cells);
   // The residency bits reach the device even when an upload failed midway.
   const Status flushed = m.Flush(nullptr);
   total_uploaded_ += s.uploaded;

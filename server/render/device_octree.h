@@ -67,7 +67,9 @@
 //    a NON-blocking clEnqueueWriteBuffer into its slot (DMA from pinned memory on a GPU) and the
 //    host waits once when the staging ring wraps and once at the end of the Upload.
 // Brick reads never write their output on failure, so a brick read straight into the slot of its
-// eviction victim leaves the victim intact when the read fails.
+// eviction victim leaves the victim intact when the read fails. When finishing the transfers or
+// writing the cell ranges fails, no brick of that Upload is resident afterwards (their slots are
+// freed: their bytes or ranges may not be on the device), and the entries say so.
 //
 // Brick reads (DeviceOctreeOptions::brick_reads): kBlocking reads with Octree::ReadBrick (may wait
 // for the disk: command-line renders); kResidentOnly with Octree::TryReadBrick, which never waits:
@@ -86,9 +88,11 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <span>
+#include <string_view>
 #include <vector>
 
 #include "octree/octree.h"
@@ -130,6 +134,10 @@ struct DeviceOctreeOptions {
   UploadPath upload_path = UploadPath::kAuto;
   // kStaged: bytes of the staging ring (rounded down to whole bricks, at least 2).
   uint64_t staging_bytes = uint64_t{32} << 20;
+  // A seam for tests (a failing device): when set, Upload asks it before finishing its brick
+  // transfers ("bricks") and before writing the cell ranges ("cells"); a non-OK status stands for
+  // that transfer's failure.
+  std::function<Status(std::string_view transfer)> transfer_fault;
 };
 inline constexpr uint32_t kMinBrickSlots = 8;
 // What a fresh view preloads (UploadCoarseLevels): 32 MiB is the 1 + 8 coarsest bricks of a

@@ -651,6 +651,58 @@ TEST_P(DeviceOctreeUploadPathTest, FailedReadsEvictNothingAndLeaveVictimsIntact)
   }
 }
 
+// A device whose brick transfers or cell-range write fail (DeviceOctreeOptions::transfer_fault):
+// the failing Upload reports the error and leaves none of its bricks resident (the entries say
+// so), the bricks resident before stay resident and intact, and the next Upload brings all.
+TEST_P(DeviceOctreeUploadPathTest, AFailedTransferLeavesNoneOfItsBricksResident) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const auto [path, type] = GetParam();
+  auto scene = Scene(NoiseSpec(type, 2));
+  ASSERT_NE(scene, nullptr);
+  const Octree& tree = *scene->tree;
+  for (const char* failing : {"bricks", "cells"}) {
+    SCOPED_TRACE(failing);
+    std::string fail_now;
+    DeviceOctreeOptions options;
+    options.upload_path = path;
+    options.staging_bytes = 3 * tree.geometry().brick_samples() * 2;  // The ring wraps.
+    options.transfer_fault = [&fail_now](std::string_view transfer) {
+      return transfer == fail_now ? InternalError("injected: " + fail_now) : Status::Ok();
+    };
+    auto dev = MakeDevice(scene->tree.get(), options);
+    ASSERT_NE(dev, nullptr);
+    const int root = tree.geometry().root_level();
+    const std::vector<uint32_t> coarse = Ids(Bricked(tree, root - 1));
+    const std::vector<uint32_t> leaves = Ids(Bricked(tree, 0));
+    UploadBudget budget;
+    budget.max_ms = kNoTimeLimit;
+    ASSERT_TRUE(dev->Upload(coarse, budget).ok());
+    const uint64_t before = dev->resident_bricks();
+    ASSERT_GT(before, 0u);
+    fail_now = failing;
+    UploadStats stats;
+    const Status failed = dev->Upload(std::span(leaves).first(10), budget, &stats);
+    EXPECT_EQ(failed.code(), StatusCode::kInternal);
+    EXPECT_NE(failed.message().find("injected"), std::string::npos) << failed.ToString();
+    EXPECT_EQ(stats.uploaded, 0u);
+    EXPECT_EQ(dev->resident_bricks(), before);
+    for (uint32_t id : std::span(leaves).first(10)) EXPECT_FALSE(dev->SlotOf(id).has_value());
+    EXPECT_EQ(
+        FirstDifference(DeviceNodes(*dev), ExpectedNodes(tree, dev->node_capacity(), dev.get()), 2),
+        -1);
+    fail_now.clear();
+    ASSERT_TRUE(dev->Upload(std::span(leaves).first(10), budget, &stats).ok());
+    EXPECT_GE(stats.uploaded, 10u);  // And the ancestors they need.
+    for (uint32_t id : std::span(leaves).first(10)) EXPECT_TRUE(dev->SlotOf(id).has_value());
+    for (const NodeSnapshot& node : Bricked(tree)) {
+      const std::optional<uint32_t> slot = dev->SlotOf(node.id);
+      if (!slot.has_value()) continue;
+      ASSERT_EQ(DeviceBrick(*dev, *slot), HostBrick(tree, node.id)) << "node " << node.id;
+      ASSERT_EQ(DeviceCells(*dev, *slot), HostCells(tree, node.id)) << "node " << node.id;
+    }
+  }
+}
+
 TEST(DeviceOctreeTest, SplitBrickBufferHoldsEveryBrickInItsAllocation) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   auto scene = Scene(NoiseSpec(volume::DataType::kUint8, 2));
