@@ -382,7 +382,14 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     float3 cache_lo = (float3)(0.0f);
     float3 cache_hi = (float3)(0.0f);
     bool fast = false;
-    float3 brick_origin = (float3)(0.0f);
+    /* Full frames: `fallback` — the wanted node (at the sample's level) is missing and the hit is
+     * a resident ancestor at most OCTO_MAX_FALLBACK_LEVELS above, read at its own level
+     * (OctoResolveSource); its samples in the wanted box march in the same tight loop, `shift`
+     * levels up (0 when fast), its valid voxel centres up to hit_valid_hi. */
+    bool fallback = false;
+    int shift = 0;
+    float3 hit_valid_hi = (float3)(0.0f);
+    float3 brick_origin = (float3)(0.0f); /* In the hit's level coordinates. */
     int last_cell = -1; /* The brick's cell whose range was tested last (-1: none). */
     /* The band's level coordinates: position = entry_l + u_l * arc, clamped to the level's valid
      * voxel centres [0.5, valid_hi] (OctoClampToLevel; scaling by 2^-level is exact). */
@@ -477,6 +484,15 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           cached_level = level;
           fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
                  shared_hit.level == level;
+          shift = shared_hit.level - level;
+          fallback = !OCTO_REFINE && !fast && OctoNodeInBuffer(shared_hit.word0) &&
+                     shared_hit.wanted_level == level && shift > 0 &&
+                     shift <= OCTO_MAX_FALLBACK_LEVELS;
+          if (fallback) {
+            const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
+            hit_valid_hi = convert_float3((n + (1 << shared_hit.level) - 1) >> shared_hit.level) -
+                           0.5f;
+          }
           brick_origin = convert_float3(shared_hit.index.xyz * OctoBrickSize(g));
           last_cell = -1;
         }
@@ -516,9 +532,14 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
        * tight loop: no box test, no node logic, the position straight from the sample index
        * (as below, so the same sample gives the same value whichever loop takes it), cells
        * tested as they are entered. The first sample of a hit takes the general path below,
-       * which requests and stamps. */
-      if (OCTO_ALL_IDENTITY && fast && !fresh) {
+       * which requests and stamps. A full frame's fallback marches the same way through the
+       * ancestor's brick up to the wanted box's exit: positions scaled `shift` levels up and
+       * clamped there as OctoResolveSource does (powers of two: exact), cell skips cut at that
+       * exit (an ancestor's cell may reach beyond the wanted box). */
+      if (OCTO_ALL_IDENTITY && (fast || fallback) && !fresh) {
         const float scale = ldexp(1.0f, level);
+        const float hit_scale = ldexp(1.0f, level + shift); /* Hit level to level 0. */
+        const float down = ldexp(1.0f, -shift);             /* Level to hit level. */
         const uint run_end =
             min(OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cache_lo * scale, cache_hi * scale,
                                        band_start, band_end, inv_dt, band_n),
@@ -530,7 +551,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           while (jj < run_end) {
             const float run_start = band_start + (float)jj * dt;
             const float run_arc = run_start + 0.5f * dt;
-            const float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
+            float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
+            if (shift > 0) lp = clamp(lp * down, 0.5f, hit_valid_hi);
             /* The cell test of the general path above, written out again: as a shared function
              * (an int* for last_cell) PoCL's build was 15-50 % slower per frame. */
             if (f.skip_empty) {
@@ -543,9 +565,11 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                   const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
                   const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
                                               brick_origin + convert_float3(OctoBrickSize(g)));
-                  const uint target =
-                      OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cell_lo * scale,
-                                             cell_hi * scale, band_start, band_end, inv_dt, band_n);
+                  uint target =
+                      OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cell_lo * hit_scale,
+                                             cell_hi * hit_scale, band_start, band_end, inv_dt,
+                                             band_n);
+                  if (shift > 0) target = min(target, run_end);
                   if (target > jj) {
                     skipped += (target - jj) * (uint)OCTO_ACTIVE_N;
                     jj = target;

@@ -19,12 +19,12 @@ struct RenderReport {
   uint64_t bricks_uploaded = 0;
   uint64_t bricks_preloaded = 0;  // The coarsest levels, uploaded before the first frame.
   double scale = 1;               // --scale: rays cast at scale x the size per axis, upsampled.
-  uint64_t samples = 0;          // Channel samples taken, all passes.
-  uint64_t samples_skipped = 0;  // Channel samples jumped over by empty-space skipping.
-  uint64_t requests = 0;         // Node requests read back, all passes.
-  double finished_fraction = 0;  // Rays finished after the last pass.
-  bool final = false;            // The image is complete at the level of detail the screen needs.
-  bool refine = false;           // --refine.
+  uint64_t samples = 0;           // Channel samples taken, all passes.
+  uint64_t samples_skipped = 0;   // Channel samples jumped over by empty-space skipping.
+  uint64_t requests = 0;          // Node requests read back, all passes.
+  double finished_fraction = 0;   // Rays finished after the last pass.
+  bool final = false;             // The image is complete at the level of detail the screen needs.
+  bool refine = false;            // --refine.
   // Full frames only (printed when ms_last_frame > 0): wall time and process CPU time (all
   // threads) of the last frame — with `final`, a frame that found everything it needed resident,
   // i.e. what re-rendering the finished view costs.

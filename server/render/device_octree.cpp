@@ -956,7 +956,8 @@ Status DeviceOctree::UploadCoarseLevels(uint64_t max_bytes, UploadStats* stats) 
       if (!node.has_value()) continue;  // Deleted meanwhile (construction goes on).
       if (node->has_brick()) bricks.push_back(id);
       if (node->has_children()) {
-        for (uint32_t octant = 0; octant < 8; ++octant) next.push_back(8 * node->child_group + octant);
+        for (uint32_t octant = 0; octant < 8; ++octant)
+          next.push_back(8 * node->child_group + octant);
       }
     }
     if (chosen.size() + bricks.size() > max_bricks) break;

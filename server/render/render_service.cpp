@@ -802,9 +802,9 @@ Result<Mirror*> RenderService::Worker::MirrorFor(DatasetKey key) {
     OCTO_RETURN_IF_ERROR(mirror->device->UploadCoarseLevels(kCoarseLevelBytes));
     OCTO_ASSIGN_OR_RETURN(mirror->volume, VolumeRenderer::Create(s.context_, programs,
                                                                  mirror->device.get(), ds.spacing));
-    OCTO_ASSIGN_OR_RETURN(mirror->slice,
-                          SliceRenderer::Create(s.context_, programs, mirror->device.get(),
-                                                ds.spacing, s.options_.slice_build_options));
+    OCTO_ASSIGN_OR_RETURN(
+        mirror->slice, SliceRenderer::Create(s.context_, programs, mirror->device.get(), ds.spacing,
+                                             s.options_.slice_build_options));
     return Status::Ok();
   };
   Status status;

@@ -353,9 +353,9 @@ TEST_F(RenderCommandTest, ReducedScaleIsTheSmallerRenderUpsampledBilinearly) {
   }
   EXPECT_EQ(bad, 0);
   // The reference renders at the full size only.
-  EXPECT_EQ(Render(*dir_ / "two.ome.tif", *dir_ / "bad.png", "--cpu-reference --scale 0.5")
-                .exit_code,
-            64);
+  EXPECT_EQ(
+      Render(*dir_ / "two.ome.tif", *dir_ / "bad.png", "--cpu-reference --scale 0.5").exit_code,
+      64);
 }
 
 TEST_F(RenderCommandTest, BadUsageIs64) {

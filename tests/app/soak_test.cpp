@@ -22,9 +22,9 @@ using namespace testing::serve_fixture;  // NOLINT
 using testing::Ack;
 using testing::DecodeFrame;
 using testing::Frame;
+using testing::kToken;
 using testing::ReadEvent;
 using testing::ReadFrameUntil;
-using testing::kToken;
 using testing::TestVolume;
 
 class SoakTest : public testing::ServeFixture {};

@@ -1187,7 +1187,8 @@ TEST(DeviceOctreeTest, CoarseLevelsAreUploadedWholeLevelsWithinTheCap) {
     ASSERT_NE(dev, nullptr);
     ASSERT_GE(dev->slot_count() / 4, two_levels.size() + third.size());
     UploadStats stats;
-    ASSERT_TRUE(dev->UploadCoarseLevels(two_levels.size() * dev->device_brick_bytes(), &stats).ok());
+    ASSERT_TRUE(
+        dev->UploadCoarseLevels(two_levels.size() * dev->device_brick_bytes(), &stats).ok());
     EXPECT_EQ(stats.uploaded, two_levels.size());
     resident_exactly(*dev, two_levels);
     // The node buffer says so too.
@@ -1199,8 +1200,7 @@ TEST(DeviceOctreeTest, CoarseLevelsAreUploadedWholeLevelsWithinTheCap) {
     // One brick short of the second level: the root alone (levels are never split).
     auto dev = MakeDevice(&tree);
     ASSERT_NE(dev, nullptr);
-    ASSERT_TRUE(
-        dev->UploadCoarseLevels((two_levels.size() - 1) * dev->device_brick_bytes()).ok());
+    ASSERT_TRUE(dev->UploadCoarseLevels((two_levels.size() - 1) * dev->device_brick_bytes()).ok());
     resident_exactly(*dev, top);
   }
   {

@@ -331,7 +331,8 @@ TEST(VolumeRendererTest, PreloadedCoarseLevelsMakeTheFirstFrameFinalAtTheirLevel
     // With the two coarsest levels (1 + 8 bricks) preloaded it is final at once: the image the
     // refinement gives at that level.
     UploadStats upload;
-    ASSERT_TRUE(rig->device->UploadCoarseLevels(9 * rig->device->device_brick_bytes(), &upload).ok());
+    ASSERT_TRUE(
+        rig->device->UploadCoarseLevels(9 * rig->device->device_brick_bytes(), &upload).ok());
     EXPECT_EQ(upload.uploaded, 9u);
     Result<RenderImage> first = rig->renderer->RenderFullFrame(camera, params, coarse, &stats);
     ASSERT_TRUE(first.ok()) << first.status().ToString();
@@ -341,6 +342,143 @@ TEST(VolumeRendererTest, PreloadedCoarseLevelsMakeTheFirstFrameFinalAtTheirLevel
     refine.lod_bias = 3;
     const RenderImage refined = Gpu(*rig, camera, params, refine);
     EXPECT_LE(CompareImages(*first, refined).max_abs, 1e-6);
+  }
+}
+
+// Full frames that fall back on a resident ancestor 1 or 2 levels up (the wanted level-0 bricks
+// missing) march it in the same tight loop as resident bricks (kernels/raycast.cl, "Brick-local
+// marching"). Scenes of 16^3 bricks with something bright in each (so no level-0 node is inert)
+// in dim, transparent noise; an oblique orthographic view, one pixel per µm.
+class FallbackTest : public ::testing::Test {
+ protected:
+  // A small blob at the centre of each 16^3 brick (levels 0..2: 64, 8, 1 bricks); with `dots`,
+  // 8^3 bricks (levels 0..3) with one bright voxel each per channel: above level 0 it averages
+  // below a window from 9000 (one level up: at most (65000 + 7 * 999) / 8) or from 2500 (two
+  // up), so those levels' cells are inert — and, 8 voxels of an ancestor 1 or 2 levels up being
+  // 16 or 32 level-0 voxels, they reach beyond the wanted 8^3 box.
+  static SceneSpec Spec(bool dots = false) {
+    SceneSpec spec;
+    spec.size = {64, 64, 64};
+    const int64_t b = dots ? 8 : 16;
+    spec.brick = {b, b, b};
+    spec.channels = 2;
+    spec.value = [dots, b](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+      const int64_t dx = x % b - (dots ? 3 + c : 7 + c), dy = y % b - (dots ? 3 : 8),
+                    dz = z % b - (dots ? 3 : 8);
+      if (dx * dx + dy * dy + dz * dz < (dots ? 1 : 5)) {
+        return static_cast<uint16_t>(40000 + Hash(x, y, z, c) % 25000);
+      }
+      return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+    };
+    return spec;
+  }
+  // Oblique, or (grazing) nearly along x, so that rays run along the faces y = 0 and z = 0 within
+  // the outer half voxel, where positions clamp.
+  static Camera View(bool grazing = false) {
+    const Vec3 centre{32, 32, 32};
+    const Vec3 dir = Normalize(grazing ? Vec3{1, 0.004, 0.003} : Vec3{1, 0.7, 2});
+    Result<Camera> camera = Camera::LookAt(Projection::kOrthographic, centre - dir * 200, centre,
+                                           {0, -1, 0}, 64, 64, 30, 64);
+    EXPECT_TRUE(camera.ok()) << camera.status().ToString();
+    return *camera;
+  }
+  // The window starts at `lo`: 2000 makes the dim noise transparent (DVR); for the dots, above.
+  static RenderParams Params(RenderMode mode, double lo = 2000) {
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    for (ChannelParams& ch : params.channels) {
+      ch.window = 20000;
+      ch.level = lo + 10000;
+      ch.opacity_scale = 0.3;
+    }
+    return params;
+  }
+  // A fresh rig whose resident bricks are those of level `level` (and the root), plus every
+  // other level-0 brick when `checkerboard`.
+  static std::unique_ptr<Rig> Resident(int level, bool checkerboard, bool dots = false) {
+    auto rig = MakeRig(Spec(dots));
+    if (rig == nullptr) return nullptr;
+    std::vector<uint32_t> ids;
+    for (uint32_t id = 0; id < rig->device->node_capacity(); ++id) {
+      const std::optional<octree::NodeSnapshot> n = rig->scene->tree->GetNode(id);
+      if (!n || !n->has_brick()) continue;
+      const auto& k = n->key;
+      if (k.level == level ||
+          (checkerboard && k.level == 0 && (k.index[0] + k.index[1] + k.index[2]) % 2 == 0)) {
+        ids.push_back(id);
+      }
+    }
+    EXPECT_FALSE(ids.empty());
+    EXPECT_TRUE(rig->device->UploadAll(ids, 0).ok());
+    return rig;
+  }
+  static RenderImage Frame(Rig& rig, const RenderParams& params, const FrameOptions& options,
+                           FrameStats* stats, bool grazing = false) {
+    Result<RenderImage> image =
+        rig.renderer->RenderFullFrame(View(grazing), params, options, stats);
+    EXPECT_TRUE(image.ok()) << image.status().ToString();
+    return image.ok() ? std::move(*image) : RenderImage{};
+  }
+};
+
+// Without skipping, the fallback image is the frame AT the ancestor's level with the step scaled
+// down to the same sample spacing (same arcs, the same positions after the exact power-of-two
+// scaling, the same opacity ratio), which reads that level resident: bit for bit.
+TEST_F(FallbackTest, EqualsTheAncestorLevelAtTheSameSpacing) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  for (const int shift : {1, 2}) {
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+      for (const bool grazing : {false, true}) {
+        const std::string what = std::string(RenderModeName(mode)) + ", " + std::to_string(shift) +
+                                 " level(s) up" + (grazing ? ", grazing" : "");
+        FrameOptions plain;
+        plain.skip_empty_space = false;
+        auto rig = Resident(shift, false);
+        ASSERT_NE(rig, nullptr);
+        FrameStats stats;
+        const RenderImage fallback = Frame(*rig, Params(mode), plain, &stats, grazing);
+        EXPECT_FALSE(stats.final) << what;  // It asked for the level-0 bricks.
+        auto at_level = Resident(shift, false);
+        ASSERT_NE(at_level, nullptr);
+        RenderParams scaled = Params(mode);
+        scaled.step_voxels = std::ldexp(1.0, -shift);
+        FrameOptions coarse = plain;
+        coarse.lod_bias = shift;
+        const RenderImage expected = Frame(*at_level, scaled, coarse, &stats, grazing);
+        EXPECT_TRUE(stats.final) << what;
+        EXPECT_EQ(fallback.rgba, expected.rgba)
+            << what << ": " << Describe(CompareImages(fallback, expected));
+      }
+    }
+  }
+}
+
+// Cell skipping in an ancestor's brick is lossless for what the fallback shows, and stops at the
+// wanted node's box: with every other level-0 brick resident (and so their ancestors), a skip
+// through a level-1 cell that is inert (the dots averaged below the window) into a resident
+// neighbour would drop that neighbour's dot. Two levels up: level 2 (and the root) resident.
+TEST_F(FallbackTest, CellSkippingIsLosslessAndStopsAtTheWantedBox) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  for (const int shift : {1, 2}) {
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+      const std::string what =
+          std::string(RenderModeName(mode)) + ", " + std::to_string(shift) + " level(s) up";
+      const bool checkerboard = shift == 1;
+      auto on = Resident(shift, checkerboard, true);
+      auto off = Resident(shift, checkerboard, true);
+      ASSERT_TRUE(on != nullptr && off != nullptr);
+      FrameOptions skipping;
+      FrameOptions plain;
+      plain.skip_empty_space = false;
+      FrameStats on_stats, off_stats;
+      const RenderParams params = Params(mode, shift == 1 ? 9000 : 2500);
+      const RenderImage a = Frame(*on, params, skipping, &on_stats);
+      const RenderImage b = Frame(*off, params, plain, &off_stats);
+      EXPECT_FALSE(on_stats.final) << what;
+      if (mode != RenderMode::kMinIp) {
+        EXPECT_GT(on_stats.samples_skipped, 0u) << what;
+      }
+      EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
+    }
   }
 }
 
