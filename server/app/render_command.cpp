@@ -595,7 +595,9 @@ int RunRender(std::span<const std::string> args) {
   // 7. Upsampled to the output size (--scale), then the slice planes over it (an overlay: the
   //    volume does not hide them).
   render::RenderImage& image = outcome->image;
-  image = render::BilinearUpsample(image, width, height);
+  if (image.width != width || image.height != height) {
+    image = render::BilinearUpsample(image, width, height);  // No copy of a full-size image.
+  }
   if (Status s = render::DrawSlicePlanes(&image, *camera, bounds, planes); !s.ok()) {
     return Fail(input, s);
   }
