@@ -49,7 +49,27 @@ typedef struct OctoTreeGeometry {
 
 #ifdef __OPENCL_VERSION__
 
-uint OctoNodeWords(OctoTreeGeometry g) { return (uint)OCTO_NODE_WORDS(g.channels); }
+/* The brick interior size and stored channel count. A program built for one tree may fix them
+ * (-DOCTO_FIXED_BRICK=bx,by,bz -DOCTO_FIXED_CHANNELS=C, equal to the geometry argument): brick
+ * strides and node indices then compile to constants and shifts. */
+int3 OctoBrickSize(OctoTreeGeometry g) {
+#ifdef OCTO_FIXED_BRICK
+  (void)g;
+  return (int3)(OCTO_FIXED_BRICK);
+#else
+  return (int3)(g.brick_size[0], g.brick_size[1], g.brick_size[2]);
+#endif
+}
+int OctoStoredChannels(OctoTreeGeometry g) {
+#ifdef OCTO_FIXED_CHANNELS
+  (void)g;
+  return OCTO_FIXED_CHANNELS;
+#else
+  return g.channels;
+#endif
+}
+
+uint OctoNodeWords(OctoTreeGeometry g) { return (uint)OCTO_NODE_WORDS(OctoStoredChannels(g)); }
 
 bool OctoNodeInBuffer(uint word0) { return (word0 & OCTO_NODE_IN_BUFFER_BIT) != 0u; }
 bool OctoNodeHasBrick(uint word0) { return (word0 & OCTO_NODE_HAS_BRICK_BIT) != 0u; }
@@ -75,26 +95,25 @@ float OctoNodeAverage(__global const uint* nodes, ulong node, OctoTreeGeometry g
  * the node and its descendants, hence every trilinear sample of their bricks that reads only
  * voxels inside the node's box, lies in it. */
 uint2 OctoNodeRange(__global const uint* nodes, ulong node, OctoTreeGeometry g, int c) {
-  const uint word = OctoNodeWord(nodes, node, g, OCTO_NODE_RANGE_WORD(g.channels) + c);
+  const uint word = OctoNodeWord(nodes, node, g, OCTO_NODE_RANGE_WORD(OctoStoredChannels(g)) + c);
   return (uint2)(word & 0xffffu, word >> 16);
 }
 
 /* Samples of one stored brick: (bs + 2)^3 voxels times C channels. */
 ulong OctoBrickSamples(OctoTreeGeometry g) {
-  return (ulong)(g.brick_size[0] + 2) * (ulong)(g.brick_size[1] + 2) *
-         (ulong)(g.brick_size[2] + 2) * (ulong)g.channels;
+  const int3 bs = OctoBrickSize(g);
+  return (ulong)(bs.x + 2) * (ulong)(bs.y + 2) * (ulong)(bs.z + 2) * (ulong)OctoStoredChannels(g);
 }
 
 /* Cells per axis of a brick: ceil(bs / OCTO_CELL_SIZE). */
 int3 OctoCellsPerAxis(OctoTreeGeometry g) {
-  const int3 bs = (int3)(g.brick_size[0], g.brick_size[1], g.brick_size[2]);
-  return (bs + OCTO_CELL_SIZE - 1) / OCTO_CELL_SIZE;
+  return (OctoBrickSize(g) + OCTO_CELL_SIZE - 1) / OCTO_CELL_SIZE;
 }
 
 /* Cell range words of one slot: cells times channels. */
 ulong OctoCellWords(OctoTreeGeometry g) {
   const int3 n = OctoCellsPerAxis(g);
-  return (ulong)n.x * (ulong)n.y * (ulong)n.z * (ulong)g.channels;
+  return (ulong)n.x * (ulong)n.y * (ulong)n.z * (ulong)OctoStoredChannels(g);
 }
 
 #endif /* __OPENCL_VERSION__ */

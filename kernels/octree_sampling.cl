@@ -36,10 +36,6 @@ typedef struct OctoNodeHit {
   uint slot;        /* `node`'s brick slot; 0 unless in_buffer. */
 } OctoNodeHit;
 
-int3 OctoBrickSize(OctoTreeGeometry g) {
-  return (int3)(g.brick_size[0], g.brick_size[1], g.brick_size[2]);
-}
-
 /* The index (in bricks) of the level-`level` node containing p; p is clamped into the node grid
  * [0, bs * 2^(R - level)) of level-`level` voxels, so any position gives a valid node. */
 int4 OctoNodeIndex(float3 p, int level, OctoTreeGeometry g) {
@@ -115,7 +111,7 @@ OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos) {
   const int3 i0 = clamp(convert_int3(floor_local), (int3)(0), bs);
   OctoTrilinear t;
   t.f = clamp(brick_pos - floor_local, 0.0f, 1.0f);
-  const uint channels = (uint)g.channels;
+  const uint channels = (uint)OctoStoredChannels(g);
   const uint sx = (uint)(bs.x + 2);
   const uint sy = (uint)(bs.y + 2);
   t.dx = channels;

@@ -173,7 +173,7 @@ bool OctoRangeInert(uint range, __global const OctoChannelParams* channels, cons
 bool OctoNodeInert(__global const uint* nodes, ulong node, OctoTreeGeometry g, OctoRenderFrame f,
                    __global const OctoChannelParams* channels, const float* extreme) {
   (void)f; /* Only the unspecialised channel count reads it. */
-  const ulong base = node * OctoNodeWords(g) + (ulong)OCTO_NODE_RANGE_WORD(g.channels);
+  const ulong base = node * OctoNodeWords(g) + (ulong)OCTO_NODE_RANGE_WORD(OctoStoredChannels(g));
   for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
     if (!OctoRangeInert(nodes[base + (ulong)OCTO_CHANNEL_OF(k)], channels, extreme, k)) {
       return false;
@@ -193,6 +193,27 @@ bool OctoCellInert(__global const uint* words, OctoRenderFrame f,
   return true;
 }
 
+/* Whether node `node` (brick index `index` at level l) is inert (OctoNodeInert) with p inside
+ * its box shrunk by half a level-l voxel (level-0 coordinates in *lo, *hi); sets *near_face when
+ * it is inert but p lies in that shell. */
+bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node, int3 index,
+                      int l, float3 p, OctoRenderFrame f,
+                      __global const OctoChannelParams* channels, const float* extreme,
+                      float3* lo, float3* hi, bool* near_face) {
+  if (!OctoNodeInert(nodes, node, g, f, channels, extreme)) return false;
+  const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, l);
+  const float half_voxel = ldexp(0.5f, l);
+  const float3 box_lo = convert_float3(index) * size + half_voxel;
+  const float3 box_hi = box_lo + size - 2.0f * half_voxel;
+  if (all(p > box_lo) && all(p < box_hi)) {
+    *lo = box_lo;
+    *hi = box_hi;
+    return true;
+  }
+  *near_face = true;
+  return false;
+}
+
 /* The coarsest node on p's path (root down to `level`) that is inert (OctoNodeInert) and whose
  * box, shrunk by half a voxel of the node's own level, contains p. A sample inside that shrunk
  * box reads level-L <= node-level voxels of the node's subtree only (trilinear footprints reach
@@ -210,17 +231,9 @@ bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g, float3 p, int 
   uint word0 = OctoNodeWord(nodes, 0, g, 0);
   *near_face = false;
   for (;;) {
-    if (OctoNodeInert(nodes, node, g, f, channels, extreme)) {
-      const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, l);
-      const float half_voxel = ldexp(0.5f, l);
-      const float3 box_lo = convert_float3(index.xyz) * size + half_voxel;
-      const float3 box_hi = box_lo + size - 2.0f * half_voxel;
-      if (all(p > box_lo) && all(p < box_hi)) {
-        *lo = box_lo;
-        *hi = box_hi;
-        return true;
-      }
-      *near_face = true;
+    if (OctoInertNodeBox(nodes, g, node, index.xyz, l, p, f, channels, extreme, lo, hi,
+                         near_face)) {
+      return true;
     }
     const uint group = OctoNodeChildGroup(word0);
     if (l <= target || group == 0u) return false;
@@ -448,20 +461,24 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             all(level_pos < cache_hi)) {
           fresh = false;
         } else {
-          /* DVR finds the node first: in a brick resident at the sample's level the brick's cell
-           * ranges (below) do the skipping, cheaper than the walk from the root. */
-          const bool dvr = OCTO_MODE == OCTO_MODE_DVR;
-          if (dvr) shared_hit = OctoFindNode(nodes, g, shared_q, level);
-          fast = dvr && OctoNodeInBuffer(shared_hit.word0) &&
-                 shared_hit.node == shared_hit.wanted && shared_hit.level == level;
+          /* The node first: in a brick resident at the sample's level only that node's own range
+           * is tested (an inert ancestor makes it inert too), and its cell ranges (below) do the
+           * finer skipping, cheaper than the walk from the root. */
+          shared_hit = OctoFindNode(nodes, g, shared_q, level);
+          fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
+                 shared_hit.level == level;
           /* Value ranges: jump over the inert node around p (before anything is requested). A
            * sample in an inert node's shell is taken, but not cached: the next one checks again. */
           bool near_face = false;
-          if (f.skip_empty && !fast) {
+          if (f.skip_empty) {
             float3 inert_lo;
             float3 inert_hi;
-            if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
-                             &near_face)) {
+            const bool inert =
+                fast ? OctoInertNodeBox(nodes, g, shared_hit.node, shared_hit.index.xyz, level, p,
+                                        f, channels, extreme, &inert_lo, &inert_hi, &near_face)
+                     : OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo,
+                                    &inert_hi, &near_face);
+            if (inert) {
               const uint target =
                   OctoFirstSegmentBeyond(entry, inv_u, entry_abs, inert_lo, inert_hi, band_start,
                                          band_end, inv_dt, band_n);
@@ -473,7 +490,6 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
               }
             }
           }
-          if (!dvr) shared_hit = OctoFindNode(nodes, g, shared_q, level);
           shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
           const float3 size =
               convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level - level);
@@ -510,7 +526,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           /* The brick counts as used even when its first cell is skipped (eviction order). */
           if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
           __global const uint* words = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) +
-                                       (ulong)cell_id * (ulong)g.channels;
+                                       (ulong)cell_id * (ulong)OctoStoredChannels(g);
           if (OctoCellInert(words, f, channels, extreme)) {
             const float scale = ldexp(1.0f, level);
             const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
@@ -530,80 +546,121 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       /* Brick-local marching: once a ray is in a brick resident at its level, the samples up to
        * the brick's exit (found once; the band's shortened last segment excluded) run in one
        * tight loop: no box test, no node logic, the position straight from the sample index
-       * (as below, so the same sample gives the same value whichever loop takes it), cells
-       * tested as they are entered. The first sample of a hit takes the general path below,
-       * which requests and stamps. A full frame's fallback marches the same way through the
-       * ancestor's brick up to the wanted box's exit: positions scaled `shift` levels up and
-       * clamped there as OctoResolveSource does (powers of two: exact), cell skips cut at that
-       * exit (an ancestor's cell may reach beyond the wanted box). */
+       * (as below, so the same sample gives the same value whichever loop takes it). The first
+       * sample of a hit takes the general path below, which requests and stamps. A full frame's
+       * fallback marches the same way through the ancestor's brick up to the wanted box's exit:
+       * positions scaled `shift` levels up and clamped there as OctoResolveSource does (powers
+       * of two: exact).
+       * With skipping, the run walks the brick's cells along the ray (3-D DDA: per axis the arc
+       * of the next cell face), testing each cell once: an inert cell's midpoints are jumped
+       * over up to its exit less a rounding margin, a live cell's are sampled up to its exit plus
+       * the margin, so a skipped midpoint lies in an inert cell (a cell's range covers positions
+       * up to half a voxel outside it; the rounding is far below). Skips stop at the run's end:
+       * an ancestor's cell may reach into a neighbour resident at the finer level. */
       if (OCTO_ALL_IDENTITY && (fast || fallback) && !fresh) {
-        const float scale = ldexp(1.0f, level);
         const float hit_scale = ldexp(1.0f, level + shift); /* Hit level to level 0. */
         const float down = ldexp(1.0f, -shift);             /* Level to hit level. */
+        const float scale = ldexp(1.0f, level);
         const uint run_end =
             min(OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cache_lo * scale, cache_hi * scale,
                                        band_start, band_end, inv_dt, band_n),
                 band_n - 1u);
         if (run_end > j) {
+          uint jj = j;
+          /* The cell DDA: current cell (hit-level brick-local), the arc of its next face per
+           * axis (infinite along an axis the ray does not move on). */
+          bool dda = f.skip_empty;
           const int3 cells = OctoCellsPerAxis(g);
           __global const uint* slot_cells = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g);
-          uint jj = j;
-          while (jj < run_end) {
-            const float run_start = band_start + (float)jj * dt;
-            const float run_arc = run_start + 0.5f * dt;
-            float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
+          const int3 cell_step = convert_int3(sign(u));
+          const float3 face_side = select((float3)(0.0f), (float3)(1.0f), isgreater(u, 0.0f));
+          int3 cell = (int3)(0);
+          float3 next_face = (float3)(INFINITY);
+          if (dda) {
+            float3 lp = clamp(entry_l + u_l * ((band_start + (float)jj * dt) + 0.5f * dt),
+                              0.5f, valid_hi);
             if (shift > 0) lp = clamp(lp * down, 0.5f, hit_valid_hi);
-            /* The cell test of the general path above, written out again: as a shared function
-             * (an int* for last_cell) PoCL's build was 15-50 % slower per frame. */
-            if (f.skip_empty) {
-              const int3 cell = min(convert_int3(lp - brick_origin) / OCTO_CELL_SIZE, cells - 1);
+            cell = clamp(convert_int3(lp - brick_origin) / OCTO_CELL_SIZE, 0, cells - 1);
+            const float3 face = (brick_origin + (convert_float3(cell) + face_side) *
+                                                    (float)OCTO_CELL_SIZE) * hit_scale;
+            next_face = select((float3)(INFINITY), (face - entry) * inv_u, isfinite(inv_u));
+          }
+          while (jj < run_end) {
+            uint stop = run_end;
+            if (dda) {
+              const float cell_exit = fmin(next_face.x, fmin(next_face.y, next_face.z));
+              const float margin = 1e-3f + 1e-5f * (cell_exit + entry_abs);
               const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
-              if (cell_id != last_cell) {
-                last_cell = cell_id;
-                if (OctoCellInert(slot_cells + (ulong)cell_id * (ulong)g.channels, f, channels,
-                                  extreme)) {
-                  const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
-                  const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
-                                              brick_origin + convert_float3(OctoBrickSize(g)));
-                  uint target =
-                      OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cell_lo * hit_scale,
-                                             cell_hi * hit_scale, band_start, band_end, inv_dt,
-                                             band_n);
-                  if (shift > 0) target = min(target, run_end);
-                  if (target > jj) {
-                    skipped += (target - jj) * (uint)OCTO_ACTIVE_N;
-                    jj = target;
-                    continue;
-                  }
+              const bool inert = OctoCellInert(
+                  slot_cells + (ulong)cell_id * (ulong)OctoStoredChannels(g), f, channels,
+                  extreme);
+              /* The first segment whose midpoint is at or beyond the face (less or plus the
+               * margin), within the run. */
+              const float edge = (cell_exit + (inert ? -margin : margin) - band_start) * inv_dt;
+              const float first_beyond = ceil(edge - 0.5f);
+              const uint bound = !(first_beyond > 0.0f)           ? 0u
+                                 : first_beyond >= (float)run_end ? run_end
+                                                                  : (uint)first_beyond;
+              if (inert) {
+                if (bound > jj) {
+                  skipped += (bound - jj) * (uint)OCTO_ACTIVE_N;
+                  jj = bound;
                 }
+                stop = jj;
+              } else {
+                stop = bound;
               }
+              /* Into the next cell: across the nearest face. */
+              if (next_face.x <= next_face.y && next_face.x <= next_face.z) {
+                cell.x += cell_step.x;
+                next_face.x = ((brick_origin.x + ((float)cell.x + face_side.x) * OCTO_CELL_SIZE) *
+                                   hit_scale - entry.x) * inv_u.x;
+              } else if (next_face.y <= next_face.z) {
+                cell.y += cell_step.y;
+                next_face.y = ((brick_origin.y + ((float)cell.y + face_side.y) * OCTO_CELL_SIZE) *
+                                   hit_scale - entry.y) * inv_u.y;
+              } else {
+                cell.z += cell_step.z;
+                next_face.z = ((brick_origin.z + ((float)cell.z + face_side.z) * OCTO_CELL_SIZE) *
+                                   hit_scale - entry.z) * inv_u.z;
+              }
+              /* Out of the brick before the run's end (rounding at its faces): the rest of the
+               * run is sampled. */
+              if (any(cell < 0) || any(cell >= cells)) dda = false;
             }
-            const OctoTrilinear tri = OctoTrilinearLocal(g, lp + 0.5f - brick_origin);
+            for (; jj < stop; ++jj) {
+              const float run_arc = (band_start + (float)jj * dt) + 0.5f * dt;
+              float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
+              if (shift > 0) lp = clamp(lp * down, 0.5f, hit_valid_hi);
+              const OctoTrilinear tri = OctoTrilinearLocal(g, lp + 0.5f - brick_origin);
 #if OCTO_MODE == OCTO_MODE_DVR
-            float3 run_rgb = (float3)(0.0f);
-            float run_transmit = 1.0f;
+              float3 run_rgb = (float3)(0.0f);
+              float run_transmit = 1.0f;
 #endif
-            for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-              const float v = OctoTrilinearRead(shared_brick, tri, OCTO_CHANNEL_OF(k));
+              for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+                const float v = OctoTrilinearRead(shared_brick, tri, OCTO_CHANNEL_OF(k));
 #if OCTO_MODE == OCTO_MODE_DVR
-              OctoMixChannel(&channels[k], lut, v, band_ratio, &run_rgb, &run_transmit);
+                OctoMixChannel(&channels[k], lut, v, band_ratio, &run_rgb, &run_transmit);
 #elif OCTO_MODE == OCTO_MODE_MIP
-              extreme[k] = fmax(extreme[k], v);
+                extreme[k] = fmax(extreme[k], v);
 #else
-              extreme[k] = fmin(extreme[k], v);
+                extreme[k] = fmin(extreme[k], v);
 #endif
-            }
-            samples += (uint)OCTO_ACTIVE_N;
-            ++jj;
+              }
+              samples += (uint)OCTO_ACTIVE_N;
 #if OCTO_MODE == OCTO_MODE_DVR
-            acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
-            if (acc.w >= 0.999f) {
-              terminated = true;
-              break;
-            }
+              acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
+              if (acc.w >= 0.999f) {
+                terminated = true;
+                ++jj;
+                break;
+              }
 #endif
+            }
+            if (terminated) break;
           }
           i = band_base + jj;
+          last_cell = -1;
           if (terminated) break;
           continue;
         }

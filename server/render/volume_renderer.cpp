@@ -73,15 +73,22 @@ struct FrameInputs {
   cl_mem channels = nullptr;  // OctoChannelParams per enabled channel (at least one entry).
   cl_mem lut = nullptr;       // float4 entries (at least one).
   int active = 0;
-  // The program variant's specialising defines (kernels/raycast.cl): the enabled channels and
-  // whether all of them are untransformed; empty when no channel is enabled.
+  // The program variant's specialising defines (kernels/raycast.cl): the tree's brick size and
+  // channel count, the enabled channels and whether all of them are untransformed (the last two
+  // absent when no channel is enabled).
   std::string variant;
 };
 
-// -DOCTO_ACTIVE / OCTO_CHANNELS / OCTO_IDENTITY for the enabled channels of `packed`.
-std::string VariantDefines(const PackedFrame& packed) {
-  if (packed.frame.active_channels <= 0) return "";
-  std::string defines = " -DOCTO_ACTIVE=";
+// -DOCTO_FIXED_BRICK / OCTO_FIXED_CHANNELS for the tree (kernels/node_format.h: its strides and
+// node indices become constants), then -DOCTO_ACTIVE / OCTO_CHANNELS / OCTO_IDENTITY for the
+// enabled channels of `packed`.
+std::string VariantDefines(const octree::BrickGeometry& geometry, const PackedFrame& packed) {
+  const auto& bs = geometry.brick_size();
+  std::string defines = " -DOCTO_FIXED_BRICK=" + std::to_string(bs[0]) + "," +
+                        std::to_string(bs[1]) + "," + std::to_string(bs[2]) +
+                        " -DOCTO_FIXED_CHANNELS=" + std::to_string(geometry.channels());
+  if (packed.frame.active_channels <= 0) return defines;
+  defines.append(" -DOCTO_ACTIVE=");
   defines.append(std::to_string(packed.frame.active_channels));
   defines.append(" -DOCTO_CHANNELS=");
   for (int k = 0; k < packed.frame.active_channels; ++k) {
@@ -119,7 +126,7 @@ Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera&
   FrameInputs in;
   in.frame = packed.frame;
   in.active = packed.frame.active_channels;
-  in.variant = VariantDefines(packed);
+  in.variant = VariantDefines(geometry, packed);
   const std::vector<OctoChannelParams>& channels = packed.channels;
   const std::vector<float>& lut = packed.lut;
   const ClMem& channel_buffer = buffers.handle(FrameBuffer::kChannels);
