@@ -104,6 +104,16 @@ OctoTrilinear OctoTrilinearAt(OctoTreeGeometry g, int4 index, int level, float3 
   return OctoTrilinearLocal(g, p * ldexp(1.0f, -level) + 0.5f - convert_float3(index.xyz * bs));
 }
 
+/* The offsets between neighbouring stored voxels of a brick along x, y, z (channels interleaved,
+ * x fastest: (bs + 2) stored voxels per axis). */
+uint3 OctoBrickStrides(OctoTreeGeometry g) {
+  const int3 bs = OctoBrickSize(g);
+  const uint channels = (uint)OctoStoredChannels(g);
+  const uint sx = (uint)(bs.x + 2);
+  const uint sy = (uint)(bs.y + 2);
+  return (uint3)(channels, sx * channels, sx * sy * channels);
+}
+
 /* The same from brick-local coordinates (as OctoTrilinearAt computes them). */
 OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos) {
   const int3 bs = OctoBrickSize(g);
@@ -111,14 +121,65 @@ OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos) {
   const int3 i0 = clamp(convert_int3(floor_local), (int3)(0), bs);
   OctoTrilinear t;
   t.f = clamp(brick_pos - floor_local, 0.0f, 1.0f);
-  const uint channels = (uint)OctoStoredChannels(g);
-  const uint sx = (uint)(bs.x + 2);
-  const uint sy = (uint)(bs.y + 2);
-  t.dx = channels;
-  t.dy = sx * channels;
-  t.dz = sx * sy * channels;
-  t.o = (((uint)i0.z * sy + (uint)i0.y) * sx + (uint)i0.x) * channels;
+  const uint3 d = OctoBrickStrides(g);
+  t.dx = d.x;
+  t.dy = d.y;
+  t.dz = d.z;
+  t.o = (uint)i0.x * d.x + (uint)i0.y * d.y + (uint)i0.z * d.z;
   return t;
+}
+
+/* Four trilinear footprints at once (lane by lane OctoTrilinearLocal's). */
+typedef struct OctoTrilinear4 {
+  uint4 o;
+  uint dx;
+  uint dy;
+  uint dz;
+  float4 fx;
+  float4 fy;
+  float4 fz;
+} OctoTrilinear4;
+
+OctoTrilinear4 OctoTrilinearLocal4(OctoTreeGeometry g, float4 bx, float4 by, float4 bz) {
+  const int3 bs = OctoBrickSize(g);
+  const float4 lx = floor(bx);
+  const float4 ly = floor(by);
+  const float4 lz = floor(bz);
+  const int4 ix = clamp(convert_int4(lx), 0, bs.x);
+  const int4 iy = clamp(convert_int4(ly), 0, bs.y);
+  const int4 iz = clamp(convert_int4(lz), 0, bs.z);
+  OctoTrilinear4 t;
+  t.fx = clamp(bx - lx, 0.0f, 1.0f);
+  t.fy = clamp(by - ly, 0.0f, 1.0f);
+  t.fz = clamp(bz - lz, 0.0f, 1.0f);
+  const uint3 d = OctoBrickStrides(g);
+  t.dx = d.x;
+  t.dy = d.y;
+  t.dz = d.z;
+  t.o = convert_uint4(ix) * d.x + convert_uint4(iy) * d.y + convert_uint4(iz) * d.z;
+  return t;
+}
+
+/* Channel c of the four reads `t` (lane by lane OctoTrilinearRead's). */
+float4 OctoTrilinearRead4(__global const ushort* brick, OctoTrilinear4 t, int c) {
+  const uint4 o = t.o + (uint)c;
+#define OCTO_GATHER4(d) \
+  (float4)((float)brick[o.s0 + (d)], (float)brick[o.s1 + (d)], (float)brick[o.s2 + (d)], \
+           (float)brick[o.s3 + (d)])
+  const float4 v000 = OCTO_GATHER4(0u);
+  const float4 v100 = OCTO_GATHER4(t.dx);
+  const float4 v010 = OCTO_GATHER4(t.dy);
+  const float4 v110 = OCTO_GATHER4(t.dy + t.dx);
+  const float4 v001 = OCTO_GATHER4(t.dz);
+  const float4 v101 = OCTO_GATHER4(t.dz + t.dx);
+  const float4 v011 = OCTO_GATHER4(t.dz + t.dy);
+  const float4 v111 = OCTO_GATHER4(t.dz + t.dy + t.dx);
+#undef OCTO_GATHER4
+  const float4 v00 = mix(v000, v100, t.fx);
+  const float4 v10 = mix(v010, v110, t.fx);
+  const float4 v01 = mix(v001, v101, t.fx);
+  const float4 v11 = mix(v011, v111, t.fx);
+  return mix(mix(v00, v10, t.fy), mix(v01, v11, t.fy), t.fz);
 }
 
 /* Channel c of the trilinear read `t` from the stored brick starting at `brick`. */

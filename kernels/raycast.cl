@@ -628,6 +628,61 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                * run is sampled. */
               if (any(cell < 0) || any(cell >= cells)) dda = false;
             }
+            /* Four samples at a time: positions, footprints and interpolation as vectors (the
+             * same expressions lane by lane as the single sample below), then the ray state
+             * updated in sample order. */
+            for (; jj + 4u <= stop; jj += 4u) {
+              const float4 run_index =
+                  (float4)((float)jj, (float)(jj + 1u), (float)(jj + 2u), (float)(jj + 3u));
+              const float4 run_arc4 = (band_start + run_index * dt) + 0.5f * dt;
+              float4 px = clamp(entry_l.x + u_l.x * run_arc4, 0.5f, valid_hi.x);
+              float4 py = clamp(entry_l.y + u_l.y * run_arc4, 0.5f, valid_hi.y);
+              float4 pz = clamp(entry_l.z + u_l.z * run_arc4, 0.5f, valid_hi.z);
+              if (shift > 0) {
+                px = clamp(px * down, 0.5f, hit_valid_hi.x);
+                py = clamp(py * down, 0.5f, hit_valid_hi.y);
+                pz = clamp(pz * down, 0.5f, hit_valid_hi.z);
+              }
+              const OctoTrilinear4 tri4 = OctoTrilinearLocal4(
+                  g, px + 0.5f - brick_origin.x, py + 0.5f - brick_origin.y,
+                  pz + 0.5f - brick_origin.z);
+              float4 run_v[OCTO_STATE_CHANNELS];
+              for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+                run_v[k] = OctoTrilinearRead4(shared_brick, tri4, OCTO_CHANNEL_OF(k));
+#if OCTO_MODE == OCTO_MODE_MIP
+                extreme[k] = fmax(extreme[k], fmax(fmax(run_v[k].s0, run_v[k].s1),
+                                                   fmax(run_v[k].s2, run_v[k].s3)));
+#elif OCTO_MODE == OCTO_MODE_MINIP
+                extreme[k] = fmin(extreme[k], fmin(fmin(run_v[k].s0, run_v[k].s1),
+                                                   fmin(run_v[k].s2, run_v[k].s3)));
+#endif
+              }
+#if OCTO_MODE == OCTO_MODE_DVR
+              for (uint lane = 0u; lane < 4u; ++lane) {
+                float3 run_rgb = (float3)(0.0f);
+                float run_transmit = 1.0f;
+                for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+                  const float4 v4 = run_v[k];
+                  const float v = lane == 0u   ? v4.s0
+                                  : lane == 1u ? v4.s1
+                                  : lane == 2u ? v4.s2
+                                               : v4.s3;
+                  OctoMixChannel(&channels[k], lut, v, band_ratio, &run_rgb, &run_transmit);
+                }
+                samples += (uint)OCTO_ACTIVE_N;
+                acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
+                if (acc.w >= 0.999f) {
+                  terminated = true;
+                  jj += lane + 1u;
+                  break;
+                }
+              }
+              if (terminated) break;
+#else
+              samples += 4u * (uint)OCTO_ACTIVE_N;
+#endif
+            }
+            if (terminated) break;
             for (; jj < stop; ++jj) {
               const float run_arc = (band_start + (float)jj * dt) + 0.5f * dt;
               float3 lp = clamp(entry_l + u_l * run_arc, 0.5f, valid_hi);
