@@ -401,6 +401,10 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
      * levels up (0 when fast), its valid voxel centres up to hit_valid_hi. */
     bool fallback = false;
     int shift = 0;
+    /* `fast` only: the hit's node is inert, with its box shrunk by half a voxel (level 0). */
+    bool hit_inert = false;
+    float3 hit_inert_lo = (float3)(0.0f);
+    float3 hit_inert_hi = (float3)(0.0f);
     float3 hit_valid_hi = (float3)(0.0f);
     float3 brick_origin = (float3)(0.0f); /* In the hit's level coordinates. */
     int last_cell = -1; /* The brick's cell whose range was tested last (-1: none). */
@@ -467,18 +471,15 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           shared_hit = OctoFindNode(nodes, g, shared_q, level);
           fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
                  shared_hit.level == level;
-          /* Value ranges: jump over the inert node around p (before anything is requested). A
-           * sample in an inert node's shell is taken, but not cached: the next one checks again. */
+          /* Value ranges, other hits: jump over the inert node around p (before anything is
+           * requested). A sample in an inert node's shell is taken, but not cached: the next one
+           * checks again. */
           bool near_face = false;
-          if (f.skip_empty) {
+          if (f.skip_empty && !fast) {
             float3 inert_lo;
             float3 inert_hi;
-            const bool inert =
-                fast ? OctoInertNodeBox(nodes, g, shared_hit.node, shared_hit.index.xyz, level, p,
-                                        f, channels, extreme, &inert_lo, &inert_hi, &near_face)
-                     : OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo,
-                                    &inert_hi, &near_face);
-            if (inert) {
+            if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
+                             &near_face)) {
               const uint target =
                   OctoFirstSegmentBeyond(entry, inv_u, entry_abs, inert_lo, inert_hi, band_start,
                                          band_end, inv_dt, band_n);
@@ -490,6 +491,17 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
               }
             }
           }
+          /* A fast hit whose node is inert: its box shrunk by half a voxel (no sample inside
+           * reads a voxel outside the node) is jumped over below while the hit stays cached;
+           * samples in the shell are left to the cells, whose ranges cover their footprints. */
+          hit_inert = f.skip_empty && fast &&
+                      OctoNodeInert(nodes, shared_hit.node, g, f, channels, extreme);
+          if (hit_inert) {
+            const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, level);
+            const float half_voxel = ldexp(0.5f, level);
+            hit_inert_lo = convert_float3(shared_hit.index.xyz) * size + half_voxel;
+            hit_inert_hi = hit_inert_lo + size - 2.0f * half_voxel;
+          }
           shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
           const float3 size =
               convert_float3(OctoBrickSize(g)) * ldexp(1.0f, shared_hit.wanted_level - level);
@@ -498,8 +510,6 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           cache_hi = cache_lo + size;
           cached = !near_face;
           cached_level = level;
-          fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
-                 shared_hit.level == level;
           shift = shared_hit.level - level;
           fallback = !OCTO_REFINE && !fast && OctoNodeInBuffer(shared_hit.word0) &&
                      shared_hit.wanted_level == level && shift > 0 &&
@@ -511,6 +521,20 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           }
           brick_origin = convert_float3(shared_hit.index.xyz * OctoBrickSize(g));
           last_cell = -1;
+        }
+      }
+      /* An inert fast hit: jump to the first midpoint beyond its shrunk box when p is inside
+       * (the brick still counts as used: eviction order). */
+      if (OCTO_ALL_IDENTITY && fast && hit_inert && all(p > hit_inert_lo) &&
+          all(p < hit_inert_hi)) {
+        const uint target =
+            OctoFirstSegmentBeyond(entry, inv_u, entry_abs, hit_inert_lo, hit_inert_hi,
+                                   band_start, band_end, inv_dt, band_n);
+        if (target > j) {
+          if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
+          skipped += (target - j) * (uint)OCTO_ACTIVE_N;
+          i = band_base + target;
+          continue;
         }
       }
       /* Cell ranges: in a brick resident at the sample's level, jump over the cell around the
