@@ -537,41 +537,12 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           continue;
         }
       }
-      /* Cell ranges: in a brick resident at the sample's level, jump over the cell around the
-       * sample when it cannot change the ray (tested once per cell the ray enters). Every skipped
-       * midpoint lies between p and the cell's exit, so its clamped level position lies in the
-       * cell too and reads only the voxels the cell's range covers. */
-      if (OCTO_ALL_IDENTITY && fast && f.skip_empty) {
-        const int3 cells = OctoCellsPerAxis(g);
-        const int3 cell = min(convert_int3(level_pos - brick_origin) / OCTO_CELL_SIZE, cells - 1);
-        const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
-        if (cell_id != last_cell) {
-          last_cell = cell_id;
-          /* The brick counts as used even when its first cell is skipped (eviction order). */
-          if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
-          __global const uint* words = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) +
-                                       (ulong)cell_id * (ulong)OctoStoredChannels(g);
-          if (OctoCellInert(words, f, channels, extreme)) {
-            const float scale = ldexp(1.0f, level);
-            const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
-            const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
-                                        brick_origin + convert_float3(OctoBrickSize(g)));
-            const uint target =
-                OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cell_lo * scale, cell_hi * scale,
-                                       band_start, band_end, inv_dt, band_n);
-            if (target > j) {
-              skipped += (target - j) * (uint)OCTO_ACTIVE_N;
-              i = band_base + target;
-              continue;
-            }
-          }
-        }
-      }
       /* Brick-local marching: once a ray is in a brick resident at its level, the samples up to
        * the brick's exit (found once; the band's shortened last segment excluded) run in one
        * tight loop: no box test, no node logic, the position straight from the sample index
-       * (as below, so the same sample gives the same value whichever loop takes it). The first
-       * sample of a hit takes the general path below, which requests and stamps. A full frame's
+       * (as below, so the same sample gives the same value whichever loop takes it). A fast hit's
+       * first sample too; a fallback hit's first one takes the general path below, which
+       * requests. A full frame's
        * fallback marches the same way through the ancestor's brick up to the wanted box's exit:
        * positions scaled `shift` levels up and clamped there as OctoResolveSource does (powers
        * of two: exact).
@@ -581,7 +552,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
        * the margin, so a skipped midpoint lies in an inert cell (a cell's range covers positions
        * up to half a voxel outside it; the rounding is far below). Skips stop at the run's end:
        * an ancestor's cell may reach into a neighbour resident at the finer level. */
-      if (OCTO_ALL_IDENTITY && (fast || fallback) && !fresh) {
+      if (OCTO_ALL_IDENTITY && (fast || (fallback && !fresh))) {
         const float hit_scale = ldexp(1.0f, level + shift); /* Hit level to level 0. */
         const float down = ldexp(1.0f, -shift);             /* Level to hit level. */
         const float scale = ldexp(1.0f, level);
@@ -590,6 +561,9 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                                        band_start, band_end, inv_dt, band_n),
                 band_n - 1u);
         if (run_end > j) {
+          /* A fast hit's first sample needs nothing of the general path but the slot's stamp
+           * (its wanted node is resident: nothing to request). */
+          if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
           uint jj = j;
           /* The cell DDA: current cell (hit-level brick-local), the arc of its next face per
            * axis (infinite along an axis the ray does not move on). */
@@ -742,6 +716,36 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           last_cell = -1;
           if (terminated) break;
           continue;
+        }
+      }
+      /* Cell ranges: in a brick resident at the sample's level, jump over the cell around the
+       * sample when it cannot change the ray (tested once per cell the ray enters). Every skipped
+       * midpoint lies between p and the cell's exit, so its clamped level position lies in the
+       * cell too and reads only the voxels the cell's range covers. */
+      if (OCTO_ALL_IDENTITY && fast && f.skip_empty) {
+        const int3 cells = OctoCellsPerAxis(g);
+        const int3 cell = min(convert_int3(level_pos - brick_origin) / OCTO_CELL_SIZE, cells - 1);
+        const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
+        if (cell_id != last_cell) {
+          last_cell = cell_id;
+          /* The brick counts as used even when its first cell is skipped (eviction order). */
+          if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
+          __global const uint* words = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) +
+                                       (ulong)cell_id * (ulong)OctoStoredChannels(g);
+          if (OctoCellInert(words, f, channels, extreme)) {
+            const float scale = ldexp(1.0f, level);
+            const float3 cell_lo = brick_origin + convert_float3(cell * OCTO_CELL_SIZE);
+            const float3 cell_hi = fmin(cell_lo + (float)OCTO_CELL_SIZE,
+                                        brick_origin + convert_float3(OctoBrickSize(g)));
+            const uint target =
+                OctoFirstSegmentBeyond(entry, inv_u, entry_abs, cell_lo * scale, cell_hi * scale,
+                                       band_start, band_end, inv_dt, band_n);
+            if (target > j) {
+              skipped += (target - j) * (uint)OCTO_ACTIVE_N;
+              i = band_base + target;
+              continue;
+            }
+          }
         }
       }
 
