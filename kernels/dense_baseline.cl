@@ -181,15 +181,23 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
 #endif
       }
 #if OCTO_MODE == OCTO_MODE_DVR
+      float4 shade_r[OCTO_DENSE_ACTIVE];
+      float4 shade_g[OCTO_DENSE_ACTIVE];
+      float4 shade_b[OCTO_DENSE_ACTIVE];
+      float4 shade_a[OCTO_DENSE_ACTIVE];
+      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
+        shade_a[k] = OctoShade4(&channels[k], lut, v4[k], ratio_full, &shade_r[k], &shade_g[k],
+                                &shade_b[k]);
+      }
       for (uint lane = 0u; lane < 4u; ++lane) {
         float3 mix_rgb = (float3)(0.0f);
         float transmit = 1.0f;
         for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-          const float v = lane == 0u   ? v4[k].s0
-                          : lane == 1u ? v4[k].s1
-                          : lane == 2u ? v4[k].s2
-                                       : v4[k].s3;
-          OctoMixChannel(&channels[k], lut, v, ratio_full, &mix_rgb, &transmit);
+          const float a = OctoLane(shade_a[k], lane);
+          mix_rgb += (float3)(OctoLane(shade_r[k], lane), OctoLane(shade_g[k], lane),
+                              OctoLane(shade_b[k], lane)) *
+                     a;
+          transmit *= 1.0f - a;
         }
         samples += (uint)OCTO_DENSE_ACTIVE;
         acc = OctoCompositeUnder(acc, mix_rgb, transmit);

@@ -186,6 +186,48 @@ float OctoMixChannel(__global const OctoChannelParams* ch, __global const float4
   return rgba.w;
 }
 
+/* Lane `lane` (0..3) of v. */
+float OctoLane(float4 v, uint lane) {
+  return lane == 0u ? v.s0 : lane == 1u ? v.s1 : lane == 2u ? v.s2 : v.s3;
+}
+
+/* Four samples' transfer function and opacity correction for one channel, lane by lane the
+ * values OctoMixChannel mixes: straight colour in *r, *g, *b, the corrected alpha returned. The
+ * plain colour ramp and the squarings are vector operations (the same IEEE operations per lane);
+ * gamma, LUTs and non-power-of-two ratios go lane by lane through the scalar functions. */
+float4 OctoShade4(__global const OctoChannelParams* ch, __global const float4* lut, float4 v,
+                  OctoRatio ratio, float4* r, float4* g, float4* b) {
+  float4 t = clamp((v - ch->window_lo) * ch->inv_window, 0.0f, 1.0f);
+  if (ch->gamma != 1.0f) {
+    t = (float4)(pow(t.s0, ch->gamma), pow(t.s1, ch->gamma), pow(t.s2, ch->gamma),
+                 pow(t.s3, ch->gamma));
+  }
+  float4 a;
+  if (ch->lut >= 0) {
+    const float4 c0 = OctoTransfer(ch, lut, t.s0);
+    const float4 c1 = OctoTransfer(ch, lut, t.s1);
+    const float4 c2 = OctoTransfer(ch, lut, t.s2);
+    const float4 c3 = OctoTransfer(ch, lut, t.s3);
+    *r = (float4)(c0.x, c1.x, c2.x, c3.x);
+    *g = (float4)(c0.y, c1.y, c2.y, c3.y);
+    *b = (float4)(c0.z, c1.z, c2.z, c3.z);
+    a = (float4)(c0.w, c1.w, c2.w, c3.w);
+  } else {
+    t = clamp(t, 0.0f, 1.0f);
+    *r = ch->color[0] * t;
+    *g = ch->color[1] * t;
+    *b = ch->color[2] * t;
+    a = clamp(t * ch->opacity_scale, 0.0f, 1.0f);
+  }
+  if (ratio.squarings >= 0) {
+    /* a is in [0, 1], where b (2 - b) keeps 0 and 1 exactly, as the scalar early returns. */
+    for (int s = 0; s < ratio.squarings; ++s) a *= 2.0f - a;
+    return a;
+  }
+  return (float4)(OctoCorrectOpacity(a.s0, ratio), OctoCorrectOpacity(a.s1, ratio),
+                  OctoCorrectOpacity(a.s2, ratio), OctoCorrectOpacity(a.s3, ratio));
+}
+
 /* DVR: the sample's mixed channels (premultiplied colour sum, product of transparencies)
  * composited under `acc`; colours never beyond the mixed opacity (render_params.h). */
 float4 OctoCompositeUnder(float4 acc, float3 mix_rgb, float transmit) {

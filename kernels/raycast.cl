@@ -656,16 +656,25 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 #endif
               }
 #if OCTO_MODE == OCTO_MODE_DVR
+              float4 shade_r[OCTO_STATE_CHANNELS];
+              float4 shade_g[OCTO_STATE_CHANNELS];
+              float4 shade_b[OCTO_STATE_CHANNELS];
+              float4 shade_a[OCTO_STATE_CHANNELS];
+              for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+                shade_a[k] = OctoShade4(&channels[k], lut, run_v[k], band_ratio, &shade_r[k],
+                                        &shade_g[k], &shade_b[k]);
+              }
               for (uint lane = 0u; lane < 4u; ++lane) {
                 float3 run_rgb = (float3)(0.0f);
                 float run_transmit = 1.0f;
                 for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-                  const float4 v4 = run_v[k];
-                  const float v = lane == 0u   ? v4.s0
-                                  : lane == 1u ? v4.s1
-                                  : lane == 2u ? v4.s2
-                                               : v4.s3;
-                  OctoMixChannel(&channels[k], lut, v, band_ratio, &run_rgb, &run_transmit);
+                  /* OctoMixChannel's mixing, lane `lane`. */
+                  const float a = OctoLane(shade_a[k], lane);
+                  const float3 rgb = (float3)(OctoLane(shade_r[k], lane),
+                                              OctoLane(shade_g[k], lane),
+                                              OctoLane(shade_b[k], lane));
+                  run_rgb += rgb * a;
+                  run_transmit *= 1.0f - a;
                 }
                 samples += (uint)OCTO_ACTIVE_N;
                 acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
