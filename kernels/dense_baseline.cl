@@ -80,8 +80,10 @@ typedef struct OctoDenseFootprint4 {
   float4 fz;
 } OctoDenseFootprint4;
 
-OctoDenseFootprint4 OctoDenseFootprintAt4(float4 px, float4 py, float4 pz, int3 n,
-                                          uint channels) {
+/* Forced inline, as the renderer's four-sample helpers (octree_sampling.cl). */
+__attribute__((always_inline)) OctoDenseFootprint4 OctoDenseFootprintAt4(float4 px, float4 py,
+                                                                         float4 pz, int3 n,
+                                                                         uint channels) {
   const float4 cx = clamp(px, 0.5f, (float)n.x - 0.5f) - 0.5f;
   const float4 cy = clamp(py, 0.5f, (float)n.y - 0.5f) - 0.5f;
   const float4 cz = clamp(pz, 0.5f, (float)n.z - 0.5f) - 0.5f;
@@ -106,7 +108,8 @@ OctoDenseFootprint4 OctoDenseFootprintAt4(float4 px, float4 py, float4 pz, int3 
 }
 
 /* Channel c of the four footprints: 32 loads. */
-float4 OctoDenseRead4(__global const ushort* volume, OctoDenseFootprint4 fp, int c) {
+__attribute__((always_inline)) float4 OctoDenseRead4(__global const ushort* volume,
+                                                     OctoDenseFootprint4 fp, int c) {
   const ulong4 o = fp.o + (ulong)c;
 #define OCTO_DENSE_GATHER4(d)                                                          \
   (float4)((float)volume[o.s0 + (d).s0], (float)volume[o.s1 + (d).s1],                 \
