@@ -182,6 +182,24 @@ Served MakeService(RenderScene& scene, const RenderServiceOptions& options = {})
   return served;
 }
 
+// Closes views when it goes out of scope. Declare it after the locals the views' callbacks use:
+// a view that keeps submitting from its callback (or has a frame in flight when an ASSERT
+// returns) must not be delivered to once those locals are gone.
+class ViewsClosedAtExit {
+ public:
+  ViewsClosedAtExit(RenderService& service, std::vector<ViewId> views)
+      : service_(service), views_(std::move(views)) {}
+  ViewsClosedAtExit(const ViewsClosedAtExit&) = delete;
+  ViewsClosedAtExit& operator=(const ViewsClosedAtExit&) = delete;
+  ~ViewsClosedAtExit() {
+    for (ViewId view : views_) service_.CloseView(view);
+  }
+
+ private:
+  RenderService& service_;
+  std::vector<ViewId> views_;
+};
+
 bool Identical(const RenderImage& a, const RenderImage& b) {
   return a.width == b.width && a.height == b.height && a.rgba == b.rgba;
 }
@@ -1266,6 +1284,7 @@ TEST(RenderServiceTest, ContinuousFullFramesDoNotStarveARefinement) {
     if (result.final) f_at_final = f_frames.load();
     r_sink.Add(std::move(result));
   });
+  const ViewsClosedAtExit closed_at_exit(*service.service, {f_view, r_view});
   ASSERT_TRUE(service->Submit(f_view, VolumeRequest(f_camera, FullFrame(), 1)).ok());
   ASSERT_EQ(f_busy.get_future().wait_for(kTimeout), std::future_status::ready);
   FrameOptions slow = Refine();
@@ -1366,6 +1385,7 @@ TEST(RenderServiceTest, FullFramesOfSeveralViewsShareTheDeviceEvenly) {
           service->Submit(views[v], VolumeRequest(camera, FullFrame(), result.sequence + 1)).ok());
     });
   }
+  const ViewsClosedAtExit closed_at_exit(*service.service, views);
   for (int v = 0; v < kViews; ++v) {
     const Camera camera = Standard(*scene, StandardView::kIso, sides[v], sides[v]);
     ASSERT_TRUE(service->Submit(views[v], VolumeRequest(camera, FullFrame(), 1)).ok());
