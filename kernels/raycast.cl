@@ -584,47 +584,55 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             next_face = select((float3)(INFINITY), (face - entry) * inv_u, isfinite(inv_u));
           }
           while (jj < run_end) {
+            /* The stretch to sample, [jj, stop), then the inert cell's midpoints [.., skip_to)
+             * jumped over. DVR gathers consecutive live cells into one stretch (their samples run
+             * four at a time across cell faces): its inert test does not depend on the ray. MIP
+             * and MinIP test a cell after sampling the one before, whose samples may make it
+             * inert. */
             uint stop = run_end;
+            uint skip_to = 0u;
             if (dda) {
-              const float cell_exit = fmin(next_face.x, fmin(next_face.y, next_face.z));
-              const float margin = 1e-3f + 1e-5f * (cell_exit + entry_abs);
-              const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
-              const bool inert = OctoCellInert(
-                  slot_cells + (ulong)cell_id * (ulong)OctoStoredChannels(g), f, channels,
-                  extreme);
-              /* The first segment whose midpoint is at or beyond the face (less or plus the
-               * margin), within the run. */
-              const float edge = (cell_exit + (inert ? -margin : margin) - band_start) * inv_dt;
-              const float first_beyond = ceil(edge - 0.5f);
-              const uint bound = !(first_beyond > 0.0f)           ? 0u
-                                 : first_beyond >= (float)run_end ? run_end
-                                                                  : (uint)first_beyond;
-              if (inert) {
-                if (bound > jj) {
-                  skipped += (bound - jj) * (uint)OCTO_ACTIVE_N;
-                  jj = bound;
+              stop = jj;
+              bool inert = false;
+              do {
+                const float cell_exit = fmin(next_face.x, fmin(next_face.y, next_face.z));
+                const float margin = 1e-3f + 1e-5f * (cell_exit + entry_abs);
+                const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
+                inert = OctoCellInert(slot_cells + (ulong)cell_id * (ulong)OctoStoredChannels(g),
+                                      f, channels, extreme);
+                /* The first segment whose midpoint is at or beyond the face (less or plus the
+                 * margin), within the run. */
+                const float edge = (cell_exit + (inert ? -margin : margin) - band_start) * inv_dt;
+                const float first_beyond = ceil(edge - 0.5f);
+                const uint bound = !(first_beyond > 0.0f)           ? 0u
+                                   : first_beyond >= (float)run_end ? run_end
+                                                                    : (uint)first_beyond;
+                if (inert) {
+                  skip_to = bound;
+                } else {
+                  stop = max(stop, bound);
                 }
-                stop = jj;
-              } else {
-                stop = bound;
-              }
-              /* Into the next cell: across the nearest face. */
-              if (next_face.x <= next_face.y && next_face.x <= next_face.z) {
-                cell.x += cell_step.x;
-                next_face.x = ((brick_origin.x + ((float)cell.x + face_side.x) * OCTO_CELL_SIZE) *
-                                   hit_scale - entry.x) * inv_u.x;
-              } else if (next_face.y <= next_face.z) {
-                cell.y += cell_step.y;
-                next_face.y = ((brick_origin.y + ((float)cell.y + face_side.y) * OCTO_CELL_SIZE) *
-                                   hit_scale - entry.y) * inv_u.y;
-              } else {
-                cell.z += cell_step.z;
-                next_face.z = ((brick_origin.z + ((float)cell.z + face_side.z) * OCTO_CELL_SIZE) *
-                                   hit_scale - entry.z) * inv_u.z;
-              }
-              /* Out of the brick before the run's end (rounding at its faces): the rest of the
-               * run is sampled. */
-              if (any(cell < 0) || any(cell >= cells)) dda = false;
+                /* Into the next cell: across the nearest face. */
+                if (next_face.x <= next_face.y && next_face.x <= next_face.z) {
+                  cell.x += cell_step.x;
+                  next_face.x = ((brick_origin.x + ((float)cell.x + face_side.x) * OCTO_CELL_SIZE) *
+                                     hit_scale - entry.x) * inv_u.x;
+                } else if (next_face.y <= next_face.z) {
+                  cell.y += cell_step.y;
+                  next_face.y = ((brick_origin.y + ((float)cell.y + face_side.y) * OCTO_CELL_SIZE) *
+                                     hit_scale - entry.y) * inv_u.y;
+                } else {
+                  cell.z += cell_step.z;
+                  next_face.z = ((brick_origin.z + ((float)cell.z + face_side.z) * OCTO_CELL_SIZE) *
+                                     hit_scale - entry.z) * inv_u.z;
+                }
+                /* Out of the brick before the run's end (rounding at its faces): the rest of the
+                 * run is sampled. */
+                if (any(cell < 0) || any(cell >= cells)) {
+                  dda = false;
+                  if (!inert) stop = run_end;
+                }
+              } while (OCTO_MODE == OCTO_MODE_DVR && !inert && dda && stop < run_end);
             }
             /* Four samples at a time: positions, footprints and interpolation as vectors (the
              * same expressions lane by lane as the single sample below), then the ray state
@@ -720,6 +728,10 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
 #endif
             }
             if (terminated) break;
+            if (skip_to > jj) {
+              skipped += (skip_to - jj) * (uint)OCTO_ACTIVE_N;
+              jj = skip_to;
+            }
           }
           i = band_base + jj;
           last_cell = -1;
