@@ -31,7 +31,7 @@ typedef struct OctoRay {
 
 /* The ray of pixel (px, py) (Camera::PixelRay), clipped to the box [0, n] (faces inclusive) and
  * the planes exactly like ClipRayToVolume. */
-OctoRay OctoPixelRay(OctoRenderFrame f, int px, int py) {
+__attribute__((always_inline)) OctoRay OctoPixelRay(OctoRenderFrame f, int px, int py) {
   const float3 forward = (float3)(f.forward[0], f.forward[1], f.forward[2]);
   const float3 right = (float3)(f.right[0], f.right[1], f.right[2]);
   const float3 up = (float3)(f.up[0], f.up[1], f.up[2]);

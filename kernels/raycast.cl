@@ -220,9 +220,13 @@ bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node
  * half a voxel), or a node average: values inside the subtree's range, so it cannot change the
  * ray. Returns whether there is one, with its shrunk box (level-0 coordinates) in *lo, *hi;
  * *near_face when some inert node of the path has p in its shell instead. */
-bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g, float3 p, int level,
-                  OctoRenderFrame f, __global const OctoChannelParams* channels,
-                  const float* extreme, float3* lo, float3* hi, bool* near_face) {
+/* Forced inline, as OctoPixelRay: PoCL passed the geometry and frame structs through the stack
+ * per call, a store-forwarding stall on every call (5 % of a frame that skips everything). */
+__attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g,
+                                                 float3 p, int level, OctoRenderFrame f,
+                                                 __global const OctoChannelParams* channels,
+                                                 const float* extreme, float3* lo, float3* hi,
+                                                 bool* near_face) {
   const int target = clamp(level, 0, g.root_level);
   const int4 target_index = OctoNodeIndex(p, target, g); /* Shifted per level (OctoFindNode). */
   ulong node = 0;
@@ -471,31 +475,36 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           shared_hit = OctoFindNode(nodes, g, shared_q, level);
           fast = OctoNodeInBuffer(shared_hit.word0) && shared_hit.node == shared_hit.wanted &&
                  shared_hit.level == level;
-          /* Value ranges, other hits: jump over the inert node around p (before anything is
-           * requested). A sample in an inert node's shell is taken, but not cached: the next one
-           * checks again. */
+          /* A fast hit whose node is inert: its box shrunk by half a voxel (no sample inside
+           * reads a voxel outside the node) is jumped over below while the hit stays cached;
+           * samples in the shell are left to the cells, whose ranges cover their footprints. */
+          hit_inert = f.skip_empty && fast &&
+                      OctoNodeInert(nodes, shared_hit.node, g, f, channels, extreme);
+          /* Value ranges, other hits, and inert fast hits below the root (an inert ancestor
+           * reaches further): jump over the coarsest inert node around p (before anything is
+           * requested). A sample in an inert node's shell is taken; other hits are then not
+           * cached (the next sample checks again), a fast hit is (its cells take the shell). */
           bool near_face = false;
-          if (f.skip_empty && !fast) {
+          if (f.skip_empty && (!fast || (hit_inert && shared_hit.level < g.root_level))) {
             float3 inert_lo;
             float3 inert_hi;
+            bool in_shell = false;
             if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
-                             &near_face)) {
+                             &in_shell)) {
               const uint target =
                   OctoFirstSegmentBeyond(entry, inv_u, entry_abs, inert_lo, inert_hi, band_start,
                                          band_end, inv_dt, band_n);
               if (target > j) {
+                /* A skipped resident brick still counts as used (eviction order). */
+                if (fast) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
                 skipped += (target - j) * (uint)OCTO_ACTIVE_N;
                 i = band_base + target;
                 cached = false; /* shared_hit may have changed. */
                 continue;
               }
             }
+            near_face = in_shell && !fast;
           }
-          /* A fast hit whose node is inert: its box shrunk by half a voxel (no sample inside
-           * reads a voxel outside the node) is jumped over below while the hit stays cached;
-           * samples in the shell are left to the cells, whose ranges cover their footprints. */
-          hit_inert = f.skip_empty && fast &&
-                      OctoNodeInert(nodes, shared_hit.node, g, f, channels, extreme);
           if (hit_inert) {
             const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, level);
             const float half_voxel = ldexp(0.5f, level);
