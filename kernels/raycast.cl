@@ -194,17 +194,22 @@ bool OctoCellInert(__global const uint* words, OctoRenderFrame f,
 }
 
 /* Whether node `node` (brick index `index` at level l) is inert (OctoNodeInert) with p inside
- * its box shrunk by half a level-l voxel (level-0 coordinates in *lo, *hi); sets *near_face when
- * it is inert but p lies in that shell. */
+ * its box shrunk by half a voxel of level `data_level` >= l, the coarsest level whose data a
+ * sample inside may read (level-0 coordinates in *lo, *hi); sets *near_face when it is inert but
+ * p lies in that shell. Where that level's voxels do not tile the box (the brick size not a
+ * multiple of 2^(data_level - l) along an axis), a voxel straddling the face counts as outside. */
 bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node, int3 index,
-                      int l, float3 p, OctoRenderFrame f,
+                      int l, int data_level, float3 p, OctoRenderFrame f,
                       __global const OctoChannelParams* channels, const float* extreme,
                       float3* lo, float3* hi, bool* near_face) {
   if (!OctoNodeInert(nodes, node, g, f, channels, extreme)) return false;
-  const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, l);
-  const float half_voxel = ldexp(0.5f, l);
-  const float3 box_lo = convert_float3(index) * size + half_voxel;
-  const float3 box_hi = box_lo + size - 2.0f * half_voxel;
+  const int3 bs = OctoBrickSize(g);
+  const float3 size = convert_float3(bs) * ldexp(1.0f, l);
+  const int3 straddles = (bs & ((1 << (data_level - l)) - 1)) != 0;
+  const float3 shell =
+      ldexp(0.5f, data_level) + select((float3)(0.0f), (float3)(ldexp(1.0f, data_level)), straddles);
+  const float3 box_lo = convert_float3(index) * size + shell;
+  const float3 box_hi = box_lo + size - 2.0f * shell;
   if (all(p > box_lo) && all(p < box_hi)) {
     *lo = box_lo;
     *hi = box_hi;
@@ -215,12 +220,16 @@ bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node
 }
 
 /* The coarsest node on p's path (root down to `level`) that is inert (OctoNodeInert) and whose
- * box, shrunk by half a voxel of the node's own level, contains p. A sample inside that shrunk
- * box reads level-L <= node-level voxels of the node's subtree only (trilinear footprints reach
- * half a voxel), or a node average: values inside the subtree's range, so it cannot change the
- * ray. Returns whether there is one, with its shrunk box (level-0 coordinates) in *lo, *hi;
- * *near_face when some inert node of the path has p in its shell instead. */
-/* Forced inline, as OctoPixelRay: PoCL passed the geometry and frame structs through the stack
+ * box, shrunk by half a voxel of the coarsest level a sample inside may read, contains p. A sample
+ * inside that shrunk box reads voxels of the node's subtree only (trilinear footprints reach half
+ * a voxel), or a node average inside it: values inside the subtree's range, so it cannot change
+ * the ray. That level is the node's own, except in full frames below the path's deepest
+ * renderable node: samples whose own bricks are missing fall back on it (OctoResolveSource), and
+ * its interpolation reaches across the node's faces — a node under a brickless stand-in (whose
+ * average is shown) or with none (the root's average) is not skipped. Returns whether there is
+ * one, with its shrunk box (level-0 coordinates) in *lo, *hi; *near_face when some inert node of
+ * the path has p in its shell instead.
+ * Forced inline, as OctoPixelRay: PoCL passed the geometry and frame structs through the stack
  * per call, a store-forwarding stall on every call (5 % of a frame that skips everything). */
 __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g,
                                                  float3 p, int level, OctoRenderFrame f,
@@ -233,10 +242,27 @@ __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, Oct
   int l = g.root_level;
   int4 index = (int4)(0);
   uint word0 = OctoNodeWord(nodes, 0, g, 0);
+  int stand_in_level = -1; /* The deepest renderable node so far (-1: none). */
+  bool stand_in_resident = false;
   *near_face = false;
   for (;;) {
-    if (OctoInertNodeBox(nodes, g, node, index.xyz, l, p, f, channels, extreme, lo, hi,
-                         near_face)) {
+    if (OctoNodeInBuffer(word0) || !OctoNodeHasBrick(word0)) {
+      stand_in_level = l;
+      stand_in_resident = OctoNodeInBuffer(word0);
+    }
+    int data_level = l;
+    bool may_skip = true;
+#if !OCTO_REFINE
+    /* Refinement reads only the wanted level (it pauses where that is missing). */
+    if (stand_in_level < 0) {
+      may_skip = l == g.root_level;
+    } else if (stand_in_level > l) {
+      may_skip = stand_in_resident;
+      data_level = stand_in_level;
+    }
+#endif
+    if (may_skip && OctoInertNodeBox(nodes, g, node, index.xyz, l, data_level, p, f, channels,
+                                     extreme, lo, hi, near_face)) {
       return true;
     }
     const uint group = OctoNodeChildGroup(word0);

@@ -395,7 +395,10 @@ class FallbackTest : public ::testing::Test {
   // A fresh rig whose resident bricks are those of level `level` (and the root), plus every
   // other level-0 brick when `checkerboard`.
   static std::unique_ptr<Rig> Resident(int level, bool checkerboard, bool dots = false) {
-    auto rig = MakeRig(Spec(dots));
+    return Resident(Spec(dots), level, checkerboard);
+  }
+  static std::unique_ptr<Rig> Resident(const SceneSpec& spec, int level, bool checkerboard) {
+    auto rig = MakeRig(spec);
     if (rig == nullptr) return nullptr;
     std::vector<uint32_t> ids;
     for (uint32_t id = 0; id < rig->device->node_capacity(); ++id) {
@@ -477,6 +480,39 @@ TEST_F(FallbackTest, CellSkippingIsLosslessAndStopsAtTheWantedBox) {
       if (mode != RenderMode::kMinIp) {
         EXPECT_GT(on_stats.samples_skipped, 0u) << what;
       }
+      EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
+    }
+  }
+}
+
+// Value-range skipping while full frames fall back: a node whose own data are inert is NOT inert
+// for what the frame shows when an ancestor stands in for it, since the ancestor's interpolation
+// reaches across the node's faces. Bright slabs end at the faces x = 16 and x = 48 of dim,
+// transparent 16^3 bricks; with level-0 bricks missing, the level-1 (or level-2) ancestor's
+// interpolation carries light up to 1 (2) level-0 voxels into the dim bricks. Skipping must show
+// it: bit-identical to skipping off, and still skipping.
+TEST_F(FallbackTest, NodeSkippingKeepsTheLightAnAncestorCarriesAcrossFaces) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec = Spec();
+  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+    if (x % 32 >= 10 && x % 32 < 16) return static_cast<uint16_t>(40000 + Hash(x, y, z, c) % 25000);
+    return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+  };
+  for (const int shift : {1, 2}) {
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+      const std::string what =
+          std::string(RenderModeName(mode)) + ", " + std::to_string(shift) + " level(s) up";
+      auto on = Resident(spec, shift, false);
+      auto off = Resident(spec, shift, false);
+      ASSERT_TRUE(on != nullptr && off != nullptr);
+      FrameOptions skipping;
+      FrameOptions plain;
+      plain.skip_empty_space = false;
+      FrameStats on_stats, off_stats;
+      const RenderImage a = Frame(*on, Params(mode), skipping, &on_stats);
+      const RenderImage b = Frame(*off, Params(mode), plain, &off_stats);
+      EXPECT_FALSE(on_stats.final) << what;
+      EXPECT_GT(on_stats.samples_skipped, 0u) << what;
       EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
     }
   }
