@@ -421,6 +421,25 @@ class FallbackTest : public ::testing::Test {
     EXPECT_TRUE(image.ok()) << image.status().ToString();
     return image.ok() ? std::move(*image) : RenderImage{};
   }
+  // A full frame falling back on level `level` (plus every other level-0 brick when
+  // `checkerboard`): bit-identical with and without skipping, and (`expect_skips`) skipping.
+  static void ExpectFallbackSkippingLossless(const SceneSpec& spec, int level, bool checkerboard,
+                                             const RenderParams& params, bool expect_skips,
+                                             const std::string& what) {
+    auto on = Resident(spec, level, checkerboard);
+    auto off = Resident(spec, level, checkerboard);
+    ASSERT_TRUE(on != nullptr && off != nullptr);
+    FrameOptions plain;
+    plain.skip_empty_space = false;
+    FrameStats on_stats, off_stats;
+    const RenderImage a = Frame(*on, params, FrameOptions{}, &on_stats);
+    const RenderImage b = Frame(*off, params, plain, &off_stats);
+    EXPECT_FALSE(on_stats.final) << what;
+    if (expect_skips) {
+      EXPECT_GT(on_stats.samples_skipped, 0u) << what;
+    }
+    EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
+  }
 };
 
 // Without skipping, the fallback image is the frame AT the ancestor's level with the step scaled
@@ -465,22 +484,9 @@ TEST_F(FallbackTest, CellSkippingIsLosslessAndStopsAtTheWantedBox) {
     for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
       const std::string what =
           std::string(RenderModeName(mode)) + ", " + std::to_string(shift) + " level(s) up";
-      const bool checkerboard = shift == 1;
-      auto on = Resident(shift, checkerboard, true);
-      auto off = Resident(shift, checkerboard, true);
-      ASSERT_TRUE(on != nullptr && off != nullptr);
-      FrameOptions skipping;
-      FrameOptions plain;
-      plain.skip_empty_space = false;
-      FrameStats on_stats, off_stats;
-      const RenderParams params = Params(mode, shift == 1 ? 9000 : 2500);
-      const RenderImage a = Frame(*on, params, skipping, &on_stats);
-      const RenderImage b = Frame(*off, params, plain, &off_stats);
-      EXPECT_FALSE(on_stats.final) << what;
-      if (mode != RenderMode::kMinIp) {
-        EXPECT_GT(on_stats.samples_skipped, 0u) << what;
-      }
-      EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
+      ExpectFallbackSkippingLossless(Spec(true), shift, shift == 1,
+                                     Params(mode, shift == 1 ? 9000 : 2500),
+                                     mode != RenderMode::kMinIp, what);
     }
   }
 }
@@ -502,18 +508,7 @@ TEST_F(FallbackTest, NodeSkippingKeepsTheLightAnAncestorCarriesAcrossFaces) {
     for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
       const std::string what =
           std::string(RenderModeName(mode)) + ", " + std::to_string(shift) + " level(s) up";
-      auto on = Resident(spec, shift, false);
-      auto off = Resident(spec, shift, false);
-      ASSERT_TRUE(on != nullptr && off != nullptr);
-      FrameOptions skipping;
-      FrameOptions plain;
-      plain.skip_empty_space = false;
-      FrameStats on_stats, off_stats;
-      const RenderImage a = Frame(*on, Params(mode), skipping, &on_stats);
-      const RenderImage b = Frame(*off, Params(mode), plain, &off_stats);
-      EXPECT_FALSE(on_stats.final) << what;
-      EXPECT_GT(on_stats.samples_skipped, 0u) << what;
-      EXPECT_EQ(a.rgba, b.rgba) << what << ": " << Describe(CompareImages(a, b));
+      ExpectFallbackSkippingLossless(spec, shift, false, Params(mode), true, what);
     }
   }
 }
