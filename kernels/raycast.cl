@@ -193,23 +193,38 @@ bool OctoCellInert(__global const uint* words, OctoRenderFrame f,
   return true;
 }
 
+/* The box of the level-l node `index` (level-0 coordinates) shrunk by `shell` on each face inside
+ * the volume. A face on the volume's boundary (at 0, or at or beyond the volume's size) moves out
+ * to infinity instead: rays are clipped to the volume and positions clamped into it, so no sample
+ * reads anything beyond it (a ray entering an inert region from outside skips from its first
+ * sample). */
+void OctoShrunkNodeBox(OctoTreeGeometry g, int3 index, int l, float3 shell, float3* lo,
+                       float3* hi) {
+  const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, l);
+  const float3 node_lo = convert_float3(index) * size;
+  const float3 node_hi = node_lo + size;
+  const float3 n = convert_float3((int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]));
+  *lo = select(node_lo + shell, (float3)(-INFINITY), index == 0);
+  *hi = select(node_hi - shell, (float3)(INFINITY), isgreaterequal(node_hi, n));
+}
+
 /* Whether node `node` (brick index `index` at level l) is inert (OctoNodeInert) with p inside
  * its box shrunk by half a voxel of level `data_level` >= l, the coarsest level whose data a
- * sample inside may read (level-0 coordinates in *lo, *hi); sets *near_face when it is inert but
- * p lies in that shell. Where that level's voxels do not tile the box (the brick size not a
- * multiple of 2^(data_level - l) along an axis), a voxel straddling the face counts as outside. */
+ * sample inside may read (OctoShrunkNodeBox: level-0 coordinates in *lo, *hi); sets *near_face
+ * when it is inert but p lies in that shell. Where that level's voxels do not tile the box (the
+ * brick size not a multiple of 2^(data_level - l) along an axis), a voxel straddling the face
+ * counts as outside. */
 bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node, int3 index,
                       int l, int data_level, float3 p, OctoRenderFrame f,
                       __global const OctoChannelParams* channels, const float* extreme,
                       float3* lo, float3* hi, bool* near_face) {
   if (!OctoNodeInert(nodes, node, g, f, channels, extreme)) return false;
-  const int3 bs = OctoBrickSize(g);
-  const float3 size = convert_float3(bs) * ldexp(1.0f, l);
-  const int3 straddles = (bs & ((1 << (data_level - l)) - 1)) != 0;
+  const int3 straddles = (OctoBrickSize(g) & ((1 << (data_level - l)) - 1)) != 0;
   const float3 shell =
       ldexp(0.5f, data_level) + select((float3)(0.0f), (float3)(ldexp(1.0f, data_level)), straddles);
-  const float3 box_lo = convert_float3(index) * size + shell;
-  const float3 box_hi = box_lo + size - 2.0f * shell;
+  float3 box_lo;
+  float3 box_hi;
+  OctoShrunkNodeBox(g, index, l, shell, &box_lo, &box_hi);
   if (all(p > box_lo) && all(p < box_hi)) {
     *lo = box_lo;
     *hi = box_hi;
@@ -286,18 +301,21 @@ __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, Oct
  * skipped. */
 uint OctoFirstSegmentBeyond(float3 entry, float3 inv_u, float entry_abs, float3 lo, float3 hi,
                             float band_start, float band_end, float inv_dt, uint band_n) {
-  float arc_exit = INFINITY;
+  float box_exit = INFINITY;
   if (isfinite(inv_u.x)) {
-    arc_exit = fmin(arc_exit, ((inv_u.x > 0.0f ? hi.x : lo.x) - entry.x) * inv_u.x);
+    box_exit = fmin(box_exit, ((inv_u.x > 0.0f ? hi.x : lo.x) - entry.x) * inv_u.x);
   }
   if (isfinite(inv_u.y)) {
-    arc_exit = fmin(arc_exit, ((inv_u.y > 0.0f ? hi.y : lo.y) - entry.y) * inv_u.y);
+    box_exit = fmin(box_exit, ((inv_u.y > 0.0f ? hi.y : lo.y) - entry.y) * inv_u.y);
   }
   if (isfinite(inv_u.z)) {
-    arc_exit = fmin(arc_exit, ((inv_u.z > 0.0f ? hi.z : lo.z) - entry.z) * inv_u.z);
+    box_exit = fmin(box_exit, ((inv_u.z > 0.0f ? hi.z : lo.z) - entry.z) * inv_u.z);
   }
-  arc_exit = fmin(arc_exit, band_end);
+  const float arc_exit = fmin(box_exit, band_end);
   const float margin = 1e-3f + 1e-5f * (arc_exit + entry_abs);
+  /* The box holds the rest of the band: every later midpoint, the shortened last segment's too
+   * (which the index formula below, made for full segments, would keep). */
+  if (box_exit - margin >= band_end) return band_n;
   const float target = ceil((arc_exit - margin - band_start) * inv_dt - 0.5f);
   if (!(target > 0.0f)) return 0u;
   return target >= (float)band_n ? band_n : (uint)target;
@@ -532,10 +550,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             near_face = in_shell && !fast;
           }
           if (hit_inert) {
-            const float3 size = convert_float3(OctoBrickSize(g)) * ldexp(1.0f, level);
-            const float half_voxel = ldexp(0.5f, level);
-            hit_inert_lo = convert_float3(shared_hit.index.xyz) * size + half_voxel;
-            hit_inert_hi = hit_inert_lo + size - 2.0f * half_voxel;
+            OctoShrunkNodeBox(g, shared_hit.index.xyz, level, (float3)(ldexp(0.5f, level)),
+                              &hit_inert_lo, &hit_inert_hi);
           }
           shared_brick = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, shared_hit);
           const float3 size =

@@ -818,6 +818,41 @@ TEST(VolumeRendererTest, CellRangeSkippingInsideNonEmptyBricksIsLossless) {
   }
 }
 
+// A node's faces on the volume's boundary need no half-voxel shell (nothing beyond them is read:
+// rays are clipped to the volume, positions clamped into it), so a ray that enters an inert
+// volume skips from its first sample: with every value below the DVR window, no ray takes a
+// sample — refinement and full frames, orthographic and perspective, a volume whose far bricks
+// reach beyond it — and the image is bit-identical to skipping off.
+TEST(VolumeRendererTest, RaysEnteringAnInertVolumeTakeNoSample) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({40, 48, 36}, 2));
+  ASSERT_NE(rig, nullptr);
+  RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, RenderMode::kDvr);
+  for (ChannelParams& ch : params.channels) {
+    ch.window = 20000;
+    ch.level = 70000 + 10000;  // Everything below the window: transparent.
+  }
+  for (const Projection projection : {Projection::kOrthographic, Projection::kPerspective}) {
+    for (const StandardView view : {StandardView::kIso, StandardView::kX, StandardView::kZ}) {
+      const Camera camera = Standard(*rig, view, projection, 24, 20);
+      const std::string what =
+          std::string(projection == Projection::kPerspective ? "persp" : "ortho") + " view " +
+          std::to_string(static_cast<int>(view));
+      FrameOptions plain = Refine();
+      plain.skip_empty_space = false;
+      const RenderImage expected = Gpu(*rig, camera, params, plain);
+      FrameStats stats;
+      EXPECT_EQ(Gpu(*rig, camera, params, Refine(), &stats).rgba, expected.rgba) << what;
+      EXPECT_TRUE(stats.final) << what;
+      EXPECT_EQ(stats.samples, 0u) << what;
+      EXPECT_GT(stats.samples_skipped, 0u) << what;
+      FrameStats full;
+      EXPECT_EQ(Gpu(*rig, camera, params, FrameOptions{}, &full).rgba, expected.rgba) << what;
+      EXPECT_EQ(full.samples, 0u) << what;
+    }
+  }
+}
+
 // The walk over a brick's cells (kernels/raycast.cl, brick-local marching): cells alternate
 // like a 3-D checkerboard between bright spots (even cells) and dim noise (odd cells; their
 // ranges, apron included, reach only dim voxels), so every face of an inert cell leads into a
