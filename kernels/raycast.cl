@@ -636,21 +636,32 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           }
           while (jj < run_end) {
             /* The stretch to sample, [jj, stop), then the inert cell's midpoints [.., skip_to)
-             * jumped over. DVR gathers consecutive live cells into one stretch (their samples run
-             * four at a time across cell faces): its inert test does not depend on the ray. MIP
-             * and MinIP test a cell after sampling the one before, whose samples may make it
-             * inert. */
+             * jumped over: consecutive live cells are gathered into one stretch, so its samples
+             * run four at a time across cell faces. DVR's inert test does not depend on the ray.
+             * MIP's (MinIP's) does, and the gathered cells are not sampled yet: a cell ahead is
+             * tested against `ahead`, the extremum as it will be at least (at most) once they
+             * are — each live cell that gets a sample raises it to at least its range's minimum
+             * (lowers it to at most its maximum: every sample attributed to a cell lies in its
+             * range). Inert for `ahead` is inert for the true extremum then; a cell that only
+             * the true one makes inert is sampled, which cannot change the ray. */
             uint stop = run_end;
             uint skip_to = 0u;
             if (dda) {
               stop = jj;
               bool inert = false;
+#if OCTO_MODE == OCTO_MODE_DVR
+              const float* ahead = extreme;
+#else
+              float ahead[OCTO_STATE_CHANNELS];
+              for (int k = 0; k < OCTO_ACTIVE_N; ++k) ahead[k] = extreme[k];
+#endif
               do {
                 const float cell_exit = fmin(next_face.x, fmin(next_face.y, next_face.z));
                 const float margin = 1e-3f + 1e-5f * (cell_exit + entry_abs);
                 const int cell_id = (cell.z * cells.y + cell.y) * cells.x + cell.x;
-                inert = OctoCellInert(slot_cells + (ulong)cell_id * (ulong)OctoStoredChannels(g),
-                                      f, channels, extreme);
+                __global const uint* words =
+                    slot_cells + (ulong)cell_id * (ulong)OctoStoredChannels(g);
+                inert = OctoCellInert(words, f, channels, ahead);
                 /* The first segment whose midpoint is at or beyond the face (less or plus the
                  * margin), within the run. */
                 const float edge = (cell_exit + (inert ? -margin : margin) - band_start) * inv_dt;
@@ -661,6 +672,18 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                 if (inert) {
                   skip_to = bound;
                 } else {
+#if OCTO_MODE != OCTO_MODE_DVR
+                  if (bound > stop) {
+                    for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+                      const uint range = words[OCTO_CHANNEL_OF(k)];
+#if OCTO_MODE == OCTO_MODE_MIP
+                      ahead[k] = fmax(ahead[k], (float)(range & 0xffffu));
+#else
+                      ahead[k] = fmin(ahead[k], (float)(range >> 16));
+#endif
+                    }
+                  }
+#endif
                   stop = max(stop, bound);
                 }
                 /* Into the next cell: across the nearest face. */
@@ -683,7 +706,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                   dda = false;
                   if (!inert) stop = run_end;
                 }
-              } while (OCTO_MODE == OCTO_MODE_DVR && !inert && dda && stop < run_end);
+              } while (!inert && dda && stop < run_end);
             }
             /* Four samples at a time: positions, footprints and interpolation as vectors (the
              * same expressions lane by lane as the single sample below), then the ray state
