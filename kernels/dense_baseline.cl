@@ -196,11 +196,7 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
         float3 mix_rgb = (float3)(0.0f);
         float transmit = 1.0f;
         for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-          const float a = OctoLane(shade_a[k], lane);
-          mix_rgb += (float3)(OctoLane(shade_r[k], lane), OctoLane(shade_g[k], lane),
-                              OctoLane(shade_b[k], lane)) *
-                     a;
-          transmit *= 1.0f - a;
+          OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &mix_rgb, &transmit);
         }
         samples += (uint)OCTO_DENSE_ACTIVE;
         acc = OctoCompositeUnder(acc, mix_rgb, transmit);

@@ -191,6 +191,16 @@ float OctoLane(float4 v, uint lane) {
   return lane == 0u ? v.s0 : lane == 1u ? v.s1 : lane == 2u ? v.s2 : v.s3;
 }
 
+/* Lane `lane` of one channel's four shaded samples (OctoShade4's colours and corrected alphas)
+ * mixed into a sample's premultiplied colour sum and transparency product: OctoMixChannel's
+ * mixing, the same operations. */
+void OctoMixLane(float4 r, float4 g, float4 b, float4 a, uint lane, float3* mix_rgb,
+                 float* transmit) {
+  const float alpha = OctoLane(a, lane);
+  *mix_rgb += (float3)(OctoLane(r, lane), OctoLane(g, lane), OctoLane(b, lane)) * alpha;
+  *transmit *= 1.0f - alpha;
+}
+
 /* Four samples' transfer function and opacity correction for one channel, lane by lane the
  * values OctoMixChannel mixes: straight colour in *r, *g, *b, the corrected alpha returned. The
  * plain colour ramp and the squarings are vector operations (the same IEEE operations per lane);

@@ -750,13 +750,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                 float3 run_rgb = (float3)(0.0f);
                 float run_transmit = 1.0f;
                 for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-                  /* OctoMixChannel's mixing, lane `lane`. */
-                  const float a = OctoLane(shade_a[k], lane);
-                  const float3 rgb = (float3)(OctoLane(shade_r[k], lane),
-                                              OctoLane(shade_g[k], lane),
-                                              OctoLane(shade_b[k], lane));
-                  run_rgb += rgb * a;
-                  run_transmit *= 1.0f - a;
+                  OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &run_rgb,
+                              &run_transmit);
                 }
                 samples += (uint)OCTO_ACTIVE_N;
                 acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
