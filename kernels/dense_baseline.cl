@@ -68,68 +68,110 @@ float OctoDenseRead(__global const ushort* volume, OctoDenseFootprint fp, int c)
   return mix(mix(v00, v10, fp.f.y), mix(v01, v11, fp.f.y), fp.f.z);
 }
 
-/* Four footprints at once (lane by lane OctoDenseFootprintAt's), for the four-sample loop: a
- * hand-written kernel would vectorise along the ray as the renderer does. */
-typedef struct OctoDenseFootprint4 {
-  ulong4 o;
-  uint4 dx;
-  uint4 dy;
-  uint4 dz;
-  float4 fx;
-  float4 fy;
-  float4 fz;
-} OctoDenseFootprint4;
-
-/* Forced inline, as the renderer's four-sample helpers (octree_sampling.cl). */
-__attribute__((always_inline)) OctoDenseFootprint4 OctoDenseFootprintAt4(float4 px, float4 py,
-                                                                         float4 pz, int3 n,
-                                                                         uint channels) {
-  const float4 cx = clamp(px, 0.5f, (float)n.x - 0.5f) - 0.5f;
-  const float4 cy = clamp(py, 0.5f, (float)n.y - 0.5f) - 0.5f;
-  const float4 cz = clamp(pz, 0.5f, (float)n.z - 0.5f) - 0.5f;
-  const float4 lx = floor(cx);
-  const float4 ly = floor(cy);
-  const float4 lz = floor(cz);
-  const int4 ix = convert_int4(lx);
-  const int4 iy = convert_int4(ly);
-  const int4 iz = convert_int4(lz);
-  OctoDenseFootprint4 fp;
-  fp.fx = cx - lx;
-  fp.fy = cy - ly;
-  fp.fz = cz - lz;
-  const uint sx = (uint)n.x * channels;
-  const ulong sy = (ulong)sx * (ulong)n.y;
-  fp.dx = select((uint4)(0u), (uint4)(channels), ix < n.x - 1);
-  fp.dy = select((uint4)(0u), (uint4)(sx), iy < n.y - 1);
-  fp.dz = select((uint4)(0u), (uint4)((uint)sy), iz < n.z - 1);
-  fp.o = convert_ulong4(iz) * sy + convert_ulong4(iy) * (ulong)sx +
-         convert_ulong4(ix) * (ulong)channels;
-  return fp;
-}
-
-/* Channel c of the four footprints: 32 loads. */
-__attribute__((always_inline)) float4 OctoDenseRead4(__global const ushort* volume,
-                                                     OctoDenseFootprint4 fp, int c) {
-  const ulong4 o = fp.o + (ulong)c;
-#define OCTO_DENSE_GATHER4(d)                                                          \
-  (float4)((float)volume[o.s0 + (d).s0], (float)volume[o.s1 + (d).s1],                 \
-           (float)volume[o.s2 + (d).s2], (float)volume[o.s3 + (d).s3])
-  const uint4 zero = (uint4)(0u);
-  const float4 v000 = OCTO_DENSE_GATHER4(zero);
-  const float4 v100 = OCTO_DENSE_GATHER4(fp.dx);
-  const float4 v010 = OCTO_DENSE_GATHER4(fp.dy);
-  const float4 v110 = OCTO_DENSE_GATHER4(fp.dy + fp.dx);
-  const float4 v001 = OCTO_DENSE_GATHER4(fp.dz);
-  const float4 v101 = OCTO_DENSE_GATHER4(fp.dz + fp.dx);
-  const float4 v011 = OCTO_DENSE_GATHER4(fp.dz + fp.dy);
-  const float4 v111 = OCTO_DENSE_GATHER4(fp.dz + fp.dy + fp.dx);
-#undef OCTO_DENSE_GATHER4
-  const float4 v00 = mix(v000, v100, fp.fx);
-  const float4 v10 = mix(v010, v110, fp.fx);
-  const float4 v01 = mix(v001, v101, fp.fx);
-  const float4 v11 = mix(v011, v111, fp.fx);
-  return mix(mix(v00, v10, fp.fy), mix(v01, v11, fp.fy), fp.fz);
-}
+/* N footprints at once (lane by lane OctoDenseFootprintAt's), channel c of their reads, and N
+ * full segments of the ray state (N = 4, 8): a hand-written kernel would vectorise along the
+ * ray as the renderer does, as wide as the renderer's runs. Forced inline, as the renderer's
+ * N-sample helpers (octree_sampling.cl). OpenCL C has no templates: OCTO_DEFINE_DENSE_N writes
+ * the family once per width. */
+#define OCTO_DENSE_GATHER_4(volume, o, d)                                                          \
+  (float4)((float)(volume)[(o).s0 + (d).s0], (float)(volume)[(o).s1 + (d).s1],                     \
+           (float)(volume)[(o).s2 + (d).s2], (float)(volume)[(o).s3 + (d).s3])
+#define OCTO_DENSE_GATHER_8(volume, o, d)                                                          \
+  (float8)(OCTO_DENSE_GATHER_4(volume, (o).lo, (d).lo),                                            \
+           OCTO_DENSE_GATHER_4(volume, (o).hi, (d).hi))
+#if OCTO_MODE == OCTO_MODE_DVR
+#define OCTO_DENSE_STEP_STATE(N)                                                                   \
+  for (uint q = 0u; q < (uint)(N) / 4u; ++q) {                                                     \
+    float4 quarter[OCTO_DENSE_ACTIVE];                                                             \
+    for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) quarter[k] = OctoQuarter##N(v[k], q);              \
+    OctoCompositeFour(channels, lut, quarter, OCTO_DENSE_ACTIVE, ratio, acc, samples);             \
+    if (acc->w >= 0.999f) return true;                                                             \
+  }
+#elif OCTO_MODE == OCTO_MODE_MIP
+#define OCTO_DENSE_STEP_STATE(N)                                                                   \
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) extreme[k] = fmax(extreme[k], OctoMax##N(v[k]));     \
+  *samples += (uint)(N) * (uint)OCTO_DENSE_ACTIVE;
+#else
+#define OCTO_DENSE_STEP_STATE(N)                                                                   \
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) extreme[k] = fmin(extreme[k], OctoMin##N(v[k]));     \
+  *samples += (uint)(N) * (uint)OCTO_DENSE_ACTIVE;
+#endif
+#define OCTO_DEFINE_DENSE_N(N)                                                                     \
+  typedef struct OctoDenseFootprint##N {                                                           \
+    ulong##N o;                                                                                    \
+    uint##N dx;                                                                                    \
+    uint##N dy;                                                                                    \
+    uint##N dz;                                                                                    \
+    float##N fx;                                                                                   \
+    float##N fy;                                                                                   \
+    float##N fz;                                                                                   \
+  } OctoDenseFootprint##N;                                                                         \
+  __attribute__((always_inline)) OctoDenseFootprint##N OctoDenseFootprintAt##N(                    \
+      float##N px, float##N py, float##N pz, int3 n, uint channels) {                              \
+    const float##N cx = clamp(px, 0.5f, (float)n.x - 0.5f) - 0.5f;                                 \
+    const float##N cy = clamp(py, 0.5f, (float)n.y - 0.5f) - 0.5f;                                 \
+    const float##N cz = clamp(pz, 0.5f, (float)n.z - 0.5f) - 0.5f;                                 \
+    const float##N lx = floor(cx);                                                                 \
+    const float##N ly = floor(cy);                                                                 \
+    const float##N lz = floor(cz);                                                                 \
+    const int##N ix = convert_int##N(lx);                                                          \
+    const int##N iy = convert_int##N(ly);                                                          \
+    const int##N iz = convert_int##N(lz);                                                          \
+    OctoDenseFootprint##N fp;                                                                      \
+    fp.fx = cx - lx;                                                                               \
+    fp.fy = cy - ly;                                                                               \
+    fp.fz = cz - lz;                                                                               \
+    const uint sx = (uint)n.x * channels;                                                          \
+    const ulong sy = (ulong)sx * (ulong)n.y;                                                       \
+    fp.dx = select((uint##N)(0u), (uint##N)(channels), ix < n.x - 1);                              \
+    fp.dy = select((uint##N)(0u), (uint##N)(sx), iy < n.y - 1);                                    \
+    fp.dz = select((uint##N)(0u), (uint##N)((uint)sy), iz < n.z - 1);                              \
+    fp.o = convert_ulong##N(iz) * sy + convert_ulong##N(iy) * (ulong)sx +                          \
+           convert_ulong##N(ix) * (ulong)channels;                                                 \
+    return fp;                                                                                     \
+  }                                                                                                \
+  __attribute__((always_inline)) float##N OctoDenseRead##N(__global const ushort* volume,          \
+                                                           OctoDenseFootprint##N fp, int c) {      \
+    const ulong##N o = fp.o + (ulong)c;                                                            \
+    const uint##N zero = (uint##N)(0u);                                                            \
+    const float##N v000 = OCTO_DENSE_GATHER_##N(volume, o, zero);                                  \
+    const float##N v100 = OCTO_DENSE_GATHER_##N(volume, o, fp.dx);                                 \
+    const float##N v010 = OCTO_DENSE_GATHER_##N(volume, o, fp.dy);                                 \
+    const float##N v110 = OCTO_DENSE_GATHER_##N(volume, o, fp.dy + fp.dx);                         \
+    const float##N v001 = OCTO_DENSE_GATHER_##N(volume, o, fp.dz);                                 \
+    const float##N v101 = OCTO_DENSE_GATHER_##N(volume, o, fp.dz + fp.dx);                         \
+    const float##N v011 = OCTO_DENSE_GATHER_##N(volume, o, fp.dz + fp.dy);                         \
+    const float##N v111 = OCTO_DENSE_GATHER_##N(volume, o, fp.dz + fp.dy + fp.dx);                 \
+    const float##N v00 = mix(v000, v100, fp.fx);                                                   \
+    const float##N v10 = mix(v010, v110, fp.fx);                                                   \
+    const float##N v01 = mix(v001, v101, fp.fx);                                                   \
+    const float##N v11 = mix(v011, v111, fp.fx);                                                   \
+    return mix(mix(v00, v10, fp.fy), mix(v01, v11, fp.fy), fp.fz);                                 \
+  }                                                                                                \
+  /* Full segments j .. j + N - 1 (arc: their midpoints' arcs) into the ray state; true when       \
+   * the ray terminates (DVR). */                                                                  \
+  __attribute__((always_inline)) bool OctoDenseStep##N(                                            \
+      __global const ushort* volume, uint channels_stored, int3 n,                                 \
+      __global const OctoChannelParams* channels, __global const float4* lut,                      \
+      float3 entry, float3 u, float##N arc, OctoRatio ratio, float4* acc, float* extreme,          \
+      uint* samples) {                                                                             \
+    (void)lut;                                                                                     \
+    (void)ratio;                                                                                   \
+    (void)acc;                                                                                     \
+    (void)extreme;                                                                                 \
+    const OctoDenseFootprint##N fp = OctoDenseFootprintAt##N(                                      \
+        entry.x + u.x * arc, entry.y + u.y * arc, entry.z + u.z * arc, n, channels_stored);        \
+    float##N v[OCTO_DENSE_ACTIVE];                                                                 \
+    for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {                                                  \
+      v[k] = OctoDenseRead##N(volume, fp, channels[k].channel);                                    \
+    }                                                                                              \
+    OCTO_DENSE_STEP_STATE(N)                                                                       \
+    return false;                                                                                  \
+  }
+OCTO_DEFINE_DENSE_N(4)
+#if OCTO_RUN_LANES >= 8
+OCTO_DEFINE_DENSE_N(8)
+#endif
 
 /* volume: n.x * n.y * n.z * channels samples (f.volume = n); channels: one entry per enabled
  * channel; image: width * height float4; counters: OCTO_COUNTER_WORDS (finished rays, samples). */
@@ -158,57 +200,27 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
     const float rounding = OCTO_SLIVER_ULPS * FLT_EPSILON * (fabs(ray.t0) + fabs(ray.t1)) * vpu;
     const float dt = f.step;
     const uint segments = (uint)fmax(1.0f, ceil((len - rounding) / dt));
-#if OCTO_MODE == OCTO_MODE_DVR
+    /* DVR's opacity correction of full segments (unused by MIP/MinIP). */
     const OctoRatio ratio_full = OctoOpacityRatio(dt / vpu * f.inv_reference);
-#endif
     bool all_identity = true;
     for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) all_identity = all_identity && channels[k].identity;
     uint j = 0u;
     bool terminated = false;
-    /* Full segments four at a time when no channel has a transform (the same expressions lane by
-     * lane as the loop below), the ray state updated in sample order. */
-    for (; all_identity && j + 4u < segments; j += 4u) {
-      const float4 start4 =
-          (float4)((float)j, (float)(j + 1u), (float)(j + 2u), (float)(j + 3u)) * dt;
-      const float4 arc4 = start4 + 0.5f * dt;
-      const OctoDenseFootprint4 fp4 =
-          OctoDenseFootprintAt4(entry.x + u.x * arc4, entry.y + u.y * arc4,
-                                entry.z + u.z * arc4, n, channels_stored);
-      float4 v4[OCTO_DENSE_ACTIVE];
-      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-        v4[k] = OctoDenseRead4(volume, fp4, channels[k].channel);
-#if OCTO_MODE == OCTO_MODE_MIP
-        extreme[k] = fmax(extreme[k], fmax(fmax(v4[k].s0, v4[k].s1), fmax(v4[k].s2, v4[k].s3)));
-#elif OCTO_MODE == OCTO_MODE_MINIP
-        extreme[k] = fmin(extreme[k], fmin(fmin(v4[k].s0, v4[k].s1), fmin(v4[k].s2, v4[k].s3)));
+    /* Full segments eight (where OCTO_RUN_LANES is 8), then four at a time when no channel has
+     * a transform (the same expressions lane by lane as the loop below; lane indices j + l exact
+     * in float), the ray state updated in sample order. */
+#if OCTO_RUN_LANES >= 8
+    for (; all_identity && !terminated && j + 8u < segments; j += 8u) {
+      const float8 arc8 =
+          ((float)j + (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f)) * dt + 0.5f * dt;
+      terminated = OctoDenseStep8(volume, channels_stored, n, channels, lut, entry, u, arc8,
+                                  ratio_full, &acc, extreme, &samples);
+    }
 #endif
-      }
-#if OCTO_MODE == OCTO_MODE_DVR
-      float4 shade_r[OCTO_DENSE_ACTIVE];
-      float4 shade_g[OCTO_DENSE_ACTIVE];
-      float4 shade_b[OCTO_DENSE_ACTIVE];
-      float4 shade_a[OCTO_DENSE_ACTIVE];
-      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-        shade_a[k] = OctoShade4(&channels[k], lut, v4[k], ratio_full, &shade_r[k], &shade_g[k],
-                                &shade_b[k]);
-      }
-      for (uint lane = 0u; lane < 4u; ++lane) {
-        float3 mix_rgb = (float3)(0.0f);
-        float transmit = 1.0f;
-        for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-          OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &mix_rgb, &transmit);
-        }
-        samples += (uint)OCTO_DENSE_ACTIVE;
-        acc = OctoCompositeUnder(acc, mix_rgb, transmit);
-        if (acc.w >= 0.999f) {
-          terminated = true;
-          break;
-        }
-      }
-      if (terminated) break;
-#else
-      samples += 4u * (uint)OCTO_DENSE_ACTIVE;
-#endif
+    for (; all_identity && !terminated && j + 4u < segments; j += 4u) {
+      const float4 arc4 = ((float)j + (float4)(0.0f, 1.0f, 2.0f, 3.0f)) * dt + 0.5f * dt;
+      terminated = OctoDenseStep4(volume, channels_stored, n, channels, lut, entry, u, arc4,
+                                  ratio_full, &acc, extreme, &samples);
     }
     for (; !terminated && j < segments; ++j) {
       const float start = (float)j * dt;

@@ -129,62 +129,66 @@ OctoTrilinear OctoTrilinearLocal(OctoTreeGeometry g, float3 brick_pos) {
   return t;
 }
 
-/* Four trilinear footprints at once (lane by lane OctoTrilinearLocal's). */
-typedef struct OctoTrilinear4 {
-  uint4 o;
-  uint dx;
-  uint dy;
-  uint dz;
-  float4 fx;
-  float4 fy;
-  float4 fz;
-} OctoTrilinear4;
-
-/* Both four-sample helpers are forced inline: PoCL otherwise kept them as calls with the 80-byte
- * footprint passed through the stack (12 % of a DVR frame; inlined, steady frames 7-9 % faster). */
-__attribute__((always_inline)) OctoTrilinear4 OctoTrilinearLocal4(OctoTreeGeometry g, float4 bx,
-                                                                   float4 by, float4 bz) {
-  const int3 bs = OctoBrickSize(g);
-  const float4 lx = floor(bx);
-  const float4 ly = floor(by);
-  const float4 lz = floor(bz);
-  const int4 ix = clamp(convert_int4(lx), 0, bs.x);
-  const int4 iy = clamp(convert_int4(ly), 0, bs.y);
-  const int4 iz = clamp(convert_int4(lz), 0, bs.z);
-  OctoTrilinear4 t;
-  t.fx = clamp(bx - lx, 0.0f, 1.0f);
-  t.fy = clamp(by - ly, 0.0f, 1.0f);
-  t.fz = clamp(bz - lz, 0.0f, 1.0f);
-  const uint3 d = OctoBrickStrides(g);
-  t.dx = d.x;
-  t.dy = d.y;
-  t.dz = d.z;
-  t.o = convert_uint4(ix) * d.x + convert_uint4(iy) * d.y + convert_uint4(iz) * d.z;
-  return t;
-}
-
-/* Channel c of the four reads `t` (lane by lane OctoTrilinearRead's). */
-__attribute__((always_inline)) float4 OctoTrilinearRead4(__global const ushort* brick,
-                                                         OctoTrilinear4 t, int c) {
-  const uint4 o = t.o + (uint)c;
-#define OCTO_GATHER4(d) \
-  (float4)((float)brick[o.s0 + (d)], (float)brick[o.s1 + (d)], (float)brick[o.s2 + (d)], \
-           (float)brick[o.s3 + (d)])
-  const float4 v000 = OCTO_GATHER4(0u);
-  const float4 v100 = OCTO_GATHER4(t.dx);
-  const float4 v010 = OCTO_GATHER4(t.dy);
-  const float4 v110 = OCTO_GATHER4(t.dy + t.dx);
-  const float4 v001 = OCTO_GATHER4(t.dz);
-  const float4 v101 = OCTO_GATHER4(t.dz + t.dx);
-  const float4 v011 = OCTO_GATHER4(t.dz + t.dy);
-  const float4 v111 = OCTO_GATHER4(t.dz + t.dy + t.dx);
-#undef OCTO_GATHER4
-  const float4 v00 = mix(v000, v100, t.fx);
-  const float4 v10 = mix(v010, v110, t.fx);
-  const float4 v01 = mix(v001, v101, t.fx);
-  const float4 v11 = mix(v011, v111, t.fx);
-  return mix(mix(v00, v10, t.fy), mix(v01, v11, t.fy), t.fz);
-}
+/* N trilinear footprints at once (lane by lane OctoTrilinearLocal's) and channel c of their
+ * reads (lane by lane OctoTrilinearRead's), for the runs' N-sample steps (N = 4, 8: a step of 8
+ * fills AVX's 256-bit registers, one of 4 takes a stretch's remainder). OpenCL C has no
+ * templates: OCTO_DEFINE_TRILINEAR_N writes the family once per width. Forced inline: PoCL
+ * otherwise kept them as calls with the footprint passed through the stack (12 % of a DVR frame;
+ * inlined, steady frames 7-9 % faster). */
+#define OCTO_GATHER_4(brick, o, d)                                                                 \
+  (float4)((float)(brick)[(o).s0 + (d)], (float)(brick)[(o).s1 + (d)],                             \
+           (float)(brick)[(o).s2 + (d)], (float)(brick)[(o).s3 + (d)])
+#define OCTO_GATHER_8(brick, o, d)                                                                 \
+  (float8)(OCTO_GATHER_4(brick, (o).lo, d), OCTO_GATHER_4(brick, (o).hi, d))
+#define OCTO_DEFINE_TRILINEAR_N(N)                                                                 \
+  typedef struct OctoTrilinear##N {                                                                \
+    uint##N o;                                                                                     \
+    uint dx;                                                                                       \
+    uint dy;                                                                                       \
+    uint dz;                                                                                       \
+    float##N fx;                                                                                   \
+    float##N fy;                                                                                   \
+    float##N fz;                                                                                   \
+  } OctoTrilinear##N;                                                                              \
+  __attribute__((always_inline)) OctoTrilinear##N OctoTrilinearLocal##N(                           \
+      OctoTreeGeometry g, float##N bx, float##N by, float##N bz) {                                 \
+    const int3 bs = OctoBrickSize(g);                                                              \
+    const float##N lx = floor(bx);                                                                 \
+    const float##N ly = floor(by);                                                                 \
+    const float##N lz = floor(bz);                                                                 \
+    const int##N ix = clamp(convert_int##N(lx), 0, bs.x);                                          \
+    const int##N iy = clamp(convert_int##N(ly), 0, bs.y);                                          \
+    const int##N iz = clamp(convert_int##N(lz), 0, bs.z);                                          \
+    OctoTrilinear##N t;                                                                            \
+    t.fx = clamp(bx - lx, 0.0f, 1.0f);                                                             \
+    t.fy = clamp(by - ly, 0.0f, 1.0f);                                                             \
+    t.fz = clamp(bz - lz, 0.0f, 1.0f);                                                             \
+    const uint3 d = OctoBrickStrides(g);                                                           \
+    t.dx = d.x;                                                                                    \
+    t.dy = d.y;                                                                                    \
+    t.dz = d.z;                                                                                    \
+    t.o = convert_uint##N(ix) * d.x + convert_uint##N(iy) * d.y + convert_uint##N(iz) * d.z;       \
+    return t;                                                                                      \
+  }                                                                                                \
+  __attribute__((always_inline)) float##N OctoTrilinearRead##N(__global const ushort* brick,       \
+                                                               OctoTrilinear##N t, int c) {        \
+    const uint##N o = t.o + (uint)c;                                                               \
+    const float##N v000 = OCTO_GATHER_##N(brick, o, 0u);                                           \
+    const float##N v100 = OCTO_GATHER_##N(brick, o, t.dx);                                         \
+    const float##N v010 = OCTO_GATHER_##N(brick, o, t.dy);                                         \
+    const float##N v110 = OCTO_GATHER_##N(brick, o, t.dy + t.dx);                                  \
+    const float##N v001 = OCTO_GATHER_##N(brick, o, t.dz);                                         \
+    const float##N v101 = OCTO_GATHER_##N(brick, o, t.dz + t.dx);                                  \
+    const float##N v011 = OCTO_GATHER_##N(brick, o, t.dz + t.dy);                                  \
+    const float##N v111 = OCTO_GATHER_##N(brick, o, t.dz + t.dy + t.dx);                           \
+    const float##N v00 = mix(v000, v100, t.fx);                                                    \
+    const float##N v10 = mix(v010, v110, t.fx);                                                    \
+    const float##N v01 = mix(v001, v101, t.fx);                                                    \
+    const float##N v11 = mix(v011, v111, t.fx);                                                    \
+    return mix(mix(v00, v10, t.fy), mix(v01, v11, t.fy), t.fz);                                    \
+  }
+OCTO_DEFINE_TRILINEAR_N(4)
+OCTO_DEFINE_TRILINEAR_N(8)
 
 /* Channel c of the trilinear read `t` from the stored brick starting at `brick`. */
 float OctoTrilinearRead(__global const ushort* brick, OctoTrilinear t, int c) {

@@ -3,7 +3,8 @@
  * function, opacity correction, channel transforms, the sample counter and the final pixel, each
  * exactly as render_params.h / camera.h define them (docs/rendering.md), in float.
  *
- * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP).
+ * Compile-time configuration (-D): OCTO_MODE (OCTO_MODE_DVR / _MIP / _MINIP), OCTO_RUN_LANES
+ * (4 or 8: the widest N-sample step of the ray casters, render::RunLanes for the device).
  */
 #ifndef OCTOSCOPE_KERNELS_RAY_COMMON_CL_
 #define OCTOSCOPE_KERNELS_RAY_COMMON_CL_
@@ -12,6 +13,9 @@
 
 #ifndef OCTO_MODE
 #define OCTO_MODE OCTO_MODE_DVR
+#endif
+#ifndef OCTO_RUN_LANES
+#define OCTO_RUN_LANES 4
 #endif
 
 /* Float rounding of the interval (a few ulps of the t values) must not grow or drop a sliver
@@ -201,6 +205,18 @@ void OctoMixLane(float4 r, float4 g, float4 b, float4 a, uint lane, float3* mix_
   *transmit *= 1.0f - alpha;
 }
 
+/* Quarter q (lanes 4q .. 4q + 3) of an N-lane vector, and the largest (smallest) lane: exact,
+ * so any order of fmax (fmin) gives the sequential result. */
+float4 OctoQuarter4(float4 v, uint q) {
+  (void)q;
+  return v;
+}
+float4 OctoQuarter8(float8 v, uint q) { return q == 0u ? v.lo : v.hi; }
+float OctoMax4(float4 v) { return fmax(fmax(v.s0, v.s1), fmax(v.s2, v.s3)); }
+float OctoMax8(float8 v) { return OctoMax4(fmax(v.lo, v.hi)); }
+float OctoMin4(float4 v) { return fmin(fmin(v.s0, v.s1), fmin(v.s2, v.s3)); }
+float OctoMin8(float8 v) { return OctoMin4(fmin(v.lo, v.hi)); }
+
 /* Four samples' transfer function and opacity correction for one channel, lane by lane the
  * values OctoMixChannel mixes: straight colour in *r, *g, *b, the corrected alpha returned. The
  * plain colour ramp and the squarings are vector operations (the same IEEE operations per lane);
@@ -245,6 +261,33 @@ float4 OctoCompositeUnder(float4 acc, float3 mix_rgb, float transmit) {
   acc.xyz += (1.0f - acc.w) * fmin(mix_rgb, (float3)(mix_a));
   acc.w += (1.0f - acc.w) * mix_a;
   return acc;
+}
+
+/* DVR: four samples of `active` channels (v[k]: channel k's values) shaded (OctoShade4), mixed
+ * per sample and composited under *acc in sample order, stopping at early termination (then
+ * acc->w >= 0.999). Returns the samples composited; adds their channel samples to *samples. */
+__attribute__((always_inline)) uint OctoCompositeFour(__global const OctoChannelParams* channels,
+                                                      __global const float4* lut, const float4* v,
+                                                      int active, OctoRatio ratio, float4* acc,
+                                                      uint* samples) {
+  float4 shade_r[OCTO_MAX_ACTIVE_CHANNELS];
+  float4 shade_g[OCTO_MAX_ACTIVE_CHANNELS];
+  float4 shade_b[OCTO_MAX_ACTIVE_CHANNELS];
+  float4 shade_a[OCTO_MAX_ACTIVE_CHANNELS];
+  for (int k = 0; k < active; ++k) {
+    shade_a[k] = OctoShade4(&channels[k], lut, v[k], ratio, &shade_r[k], &shade_g[k], &shade_b[k]);
+  }
+  for (uint lane = 0u; lane < 4u; ++lane) {
+    float3 mix_rgb = (float3)(0.0f);
+    float transmit = 1.0f;
+    for (int k = 0; k < active; ++k) {
+      OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &mix_rgb, &transmit);
+    }
+    *samples += (uint)active;
+    *acc = OctoCompositeUnder(*acc, mix_rgb, transmit);
+    if (acc->w >= 0.999f) return lane + 1u;
+  }
+  return 4u;
 }
 
 /* Adds n to the 64-bit counter held as the two uint words lo, lo + 1 (carry on wrap-around). */

@@ -321,6 +321,68 @@ uint OctoFirstSegmentBeyond(float3 entry, float3 inv_u, float entry_abs, float3 
   return target >= (float)band_n ? band_n : (uint)target;
 }
 
+/* N samples of a brick run at once (N = 4, 8), `arc` their midpoints' arcs: positions,
+ * footprints and interpolation as N-lane vectors (the same expressions lane by lane as the
+ * run's single sample), transfer function and opacity four lanes at a time (OctoShade4), then the
+ * ray state updated in sample order. Returns true when the ray terminates (DVR); *taken: the
+ * samples taken (N unless it terminated). The run's constants as in RayCast. OpenCL C has no
+ * templates: OCTO_DEFINE_RUN_STEP_N writes it once per width. */
+#if OCTO_MODE == OCTO_MODE_DVR
+#define OCTO_RUN_STEP_STATE(N)                                                                     \
+  for (uint q = 0u; q < (uint)(N) / 4u; ++q) {                                                     \
+    float4 quarter[OCTO_STATE_CHANNELS];                                                           \
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) quarter[k] = OctoQuarter##N(v[k], q);                  \
+    const uint done = OctoCompositeFour(channels, lut, quarter, OCTO_ACTIVE_N, ratio, acc,         \
+                                        samples);                                                  \
+    if (acc->w >= 0.999f) {                                                                        \
+      *taken = 4u * q + done;                                                                      \
+      return true;                                                                                 \
+    }                                                                                              \
+  }
+#elif OCTO_MODE == OCTO_MODE_MIP
+#define OCTO_RUN_STEP_STATE(N)                                                                     \
+  for (int k = 0; k < OCTO_ACTIVE_N; ++k) extreme[k] = fmax(extreme[k], OctoMax##N(v[k]));         \
+  *samples += (uint)(N) * (uint)OCTO_ACTIVE_N;
+#else
+#define OCTO_RUN_STEP_STATE(N)                                                                     \
+  for (int k = 0; k < OCTO_ACTIVE_N; ++k) extreme[k] = fmin(extreme[k], OctoMin##N(v[k]));         \
+  *samples += (uint)(N) * (uint)OCTO_ACTIVE_N;
+#endif
+#define OCTO_DEFINE_RUN_STEP_N(N)                                                                  \
+  __attribute__((always_inline)) bool OctoRunStep##N(                                              \
+      OctoRenderFrame f, OctoTreeGeometry g, __global const OctoChannelParams* channels,           \
+      __global const float4* lut, __global const ushort* brick, float##N arc, float3 entry_l,      \
+      float3 u_l, float3 valid_hi, int shift, float down, float3 hit_valid_hi,                     \
+      float3 brick_origin, OctoRatio ratio, float4* acc, float* extreme, uint* samples,            \
+      uint* taken) {                                                                               \
+    (void)f;                                                                                       \
+    (void)lut;                                                                                     \
+    (void)ratio;                                                                                   \
+    (void)acc;                                                                                     \
+    (void)extreme;                                                                                 \
+    float##N px = clamp(entry_l.x + u_l.x * arc, 0.5f, valid_hi.x);                                \
+    float##N py = clamp(entry_l.y + u_l.y * arc, 0.5f, valid_hi.y);                                \
+    float##N pz = clamp(entry_l.z + u_l.z * arc, 0.5f, valid_hi.z);                                \
+    if (shift > 0) {                                                                               \
+      px = clamp(px * down, 0.5f, hit_valid_hi.x);                                                 \
+      py = clamp(py * down, 0.5f, hit_valid_hi.y);                                                 \
+      pz = clamp(pz * down, 0.5f, hit_valid_hi.z);                                                 \
+    }                                                                                              \
+    const OctoTrilinear##N tri = OctoTrilinearLocal##N(                                            \
+        g, px + 0.5f - brick_origin.x, py + 0.5f - brick_origin.y, pz + 0.5f - brick_origin.z);    \
+    float##N v[OCTO_STATE_CHANNELS];                                                               \
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) {                                                      \
+      v[k] = OctoTrilinearRead##N(brick, tri, OCTO_CHANNEL_OF(k));                                 \
+    }                                                                                              \
+    *taken = N;                                                                                    \
+    OCTO_RUN_STEP_STATE(N)                                                                         \
+    return false;                                                                                  \
+  }
+OCTO_DEFINE_RUN_STEP_N(4)
+#if OCTO_RUN_LANES >= 8
+OCTO_DEFINE_RUN_STEP_N(8)
+#endif
+
 __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g,
                       OctoRenderFrame f, __global const OctoChannelParams* channels,
                       __global const float4* lut, volatile __global uint* request_flags,
@@ -422,9 +484,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     float band_end = len;
     float dt = f.step;
     float inv_dt = 1.0f / dt;
-#if OCTO_MODE == OCTO_MODE_DVR
-    OctoRatio band_ratio = OctoOpacityRatio(f.step / vpu * f.inv_reference); /* Full segments. */
-#endif
+    /* DVR's opacity correction of full segments (unused by MIP/MinIP). */
+    OctoRatio band_ratio = OctoOpacityRatio(f.step / vpu * f.inv_reference);
     bool terminated = false; /* DVR: early termination inside a brick run. */
     uint band_n = 0u;
     bool last_band = true;
@@ -472,9 +533,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         last_band = band_end >= len;
         dt = f.step * ldexp(1.0f, level);
         inv_dt = 1.0f / dt;
-#if OCTO_MODE == OCTO_MODE_DVR
         band_ratio = OctoOpacityRatio(dt / vpu * f.inv_reference);
-#endif
         /* Segments of dt, the last shortened to the band's end; a float sliver is no segment. A
          * ray always has at least one. */
         const float floor_n = (band_base == 0u && last_band) ? 1.0f : 0.0f;
@@ -708,63 +767,25 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                 }
               } while (!inert && dda && stop < run_end);
             }
-            /* Four samples at a time: positions, footprints and interpolation as vectors (the
-             * same expressions lane by lane as the single sample below), then the ray state
-             * updated in sample order. */
-            for (; jj + 4u <= stop; jj += 4u) {
-              const float4 run_index =
-                  (float4)((float)jj, (float)(jj + 1u), (float)(jj + 2u), (float)(jj + 3u));
-              const float4 run_arc4 = (band_start + run_index * dt) + 0.5f * dt;
-              float4 px = clamp(entry_l.x + u_l.x * run_arc4, 0.5f, valid_hi.x);
-              float4 py = clamp(entry_l.y + u_l.y * run_arc4, 0.5f, valid_hi.y);
-              float4 pz = clamp(entry_l.z + u_l.z * run_arc4, 0.5f, valid_hi.z);
-              if (shift > 0) {
-                px = clamp(px * down, 0.5f, hit_valid_hi.x);
-                py = clamp(py * down, 0.5f, hit_valid_hi.y);
-                pz = clamp(pz * down, 0.5f, hit_valid_hi.z);
-              }
-              const OctoTrilinear4 tri4 = OctoTrilinearLocal4(
-                  g, px + 0.5f - brick_origin.x, py + 0.5f - brick_origin.y,
-                  pz + 0.5f - brick_origin.z);
-              float4 run_v[OCTO_STATE_CHANNELS];
-              for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-                run_v[k] = OctoTrilinearRead4(shared_brick, tri4, OCTO_CHANNEL_OF(k));
-#if OCTO_MODE == OCTO_MODE_MIP
-                extreme[k] = fmax(extreme[k], fmax(fmax(run_v[k].s0, run_v[k].s1),
-                                                   fmax(run_v[k].s2, run_v[k].s3)));
-#elif OCTO_MODE == OCTO_MODE_MINIP
-                extreme[k] = fmin(extreme[k], fmin(fmin(run_v[k].s0, run_v[k].s1),
-                                                   fmin(run_v[k].s2, run_v[k].s3)));
+            /* Eight samples at a time (where OCTO_RUN_LANES is 8), then four (OctoRunStep8, 4),
+             * the rest one by one. The lane indices jj + l are exact in float (sample indices
+             * stay far below 2^24). */
+            uint taken = 0u;
+#if OCTO_RUN_LANES >= 8
+            for (; jj + 8u <= stop && !terminated; jj += taken) {
+              const float8 lanes = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+              const float8 arc8 = (band_start + ((float)jj + lanes) * dt) + 0.5f * dt;
+              terminated = OctoRunStep8(f, g, channels, lut, shared_brick, arc8, entry_l, u_l,
+                                        valid_hi, shift, down, hit_valid_hi, brick_origin,
+                                        band_ratio, &acc, extreme, &samples, &taken);
+            }
 #endif
-              }
-#if OCTO_MODE == OCTO_MODE_DVR
-              float4 shade_r[OCTO_STATE_CHANNELS];
-              float4 shade_g[OCTO_STATE_CHANNELS];
-              float4 shade_b[OCTO_STATE_CHANNELS];
-              float4 shade_a[OCTO_STATE_CHANNELS];
-              for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-                shade_a[k] = OctoShade4(&channels[k], lut, run_v[k], band_ratio, &shade_r[k],
-                                        &shade_g[k], &shade_b[k]);
-              }
-              for (uint lane = 0u; lane < 4u; ++lane) {
-                float3 run_rgb = (float3)(0.0f);
-                float run_transmit = 1.0f;
-                for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
-                  OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &run_rgb,
-                              &run_transmit);
-                }
-                samples += (uint)OCTO_ACTIVE_N;
-                acc = OctoCompositeUnder(acc, run_rgb, run_transmit);
-                if (acc.w >= 0.999f) {
-                  terminated = true;
-                  jj += lane + 1u;
-                  break;
-                }
-              }
-              if (terminated) break;
-#else
-              samples += 4u * (uint)OCTO_ACTIVE_N;
-#endif
+            for (; jj + 4u <= stop && !terminated; jj += taken) {
+              const float4 arc4 =
+                  (band_start + ((float)jj + (float4)(0.0f, 1.0f, 2.0f, 3.0f)) * dt) + 0.5f * dt;
+              terminated = OctoRunStep4(f, g, channels, lut, shared_brick, arc4, entry_l, u_l,
+                                        valid_hi, shift, down, hit_valid_hi, brick_origin,
+                                        band_ratio, &acc, extreme, &samples, &taken);
             }
             if (terminated) break;
             for (; jj < stop; ++jj) {

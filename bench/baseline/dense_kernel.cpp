@@ -104,9 +104,11 @@ Result<RenderImage> DenseKernel::Render(const Camera& camera, const RenderParams
   if (it == kernels_.end()) {
     OCTO_ASSIGN_OR_RETURN(
         ClKernel kernel,
-        programs_->CreateKernel("dense_baseline.cl", "DenseRayCast",
-                                "-DOCTO_MODE=" + std::to_string(key.first) +
-                                    " -DOCTO_DENSE_ACTIVE=" + std::to_string(key.second)));
+        programs_->CreateKernel(
+            "dense_baseline.cl", "DenseRayCast",
+            "-DOCTO_MODE=" + std::to_string(key.first) +
+                " -DOCTO_DENSE_ACTIVE=" + std::to_string(key.second) +
+                " -DOCTO_RUN_LANES=" + std::to_string(render::RunLanes(context_->device()))));
     it = kernels_.emplace(key, std::move(kernel)).first;
   }
   const cl_kernel kernel = it->second.get();

@@ -52,7 +52,7 @@ Result<DeviceInfo> QueryDevice(cl_platform_id platform, cl_device_id device) {
               : (type & CL_DEVICE_TYPE_ACCELERATOR) ? DeviceType::kAccelerator
                                                     : DeviceType::kOther;
   cl_ulong global = 0, max_alloc = 0;
-  cl_uint units = 0;
+  cl_uint units = 0, float_width = 1;
   size_t group = 0;
   cl_bool available = CL_FALSE, compiler = CL_FALSE;
   OCTO_RETURN_IF_ERROR(DeviceValue(device, CL_DEVICE_GLOBAL_MEM_SIZE, &global));
@@ -61,12 +61,14 @@ Result<DeviceInfo> QueryDevice(cl_platform_id platform, cl_device_id device) {
   OCTO_RETURN_IF_ERROR(DeviceValue(device, CL_DEVICE_MAX_WORK_GROUP_SIZE, &group));
   OCTO_RETURN_IF_ERROR(DeviceValue(device, CL_DEVICE_AVAILABLE, &available));
   OCTO_RETURN_IF_ERROR(DeviceValue(device, CL_DEVICE_COMPILER_AVAILABLE, &compiler));
+  OCTO_RETURN_IF_ERROR(DeviceValue(device, CL_DEVICE_PREFERRED_VECTOR_WIDTH_FLOAT, &float_width));
   info.global_memory_bytes = global;
   info.max_alloc_bytes = max_alloc;
   info.compute_units = units;
   info.max_work_group_size = group;
   info.available = available == CL_TRUE;
   info.compiler_available = compiler == CL_TRUE;
+  info.preferred_float_width = float_width;
   return info;
 }
 
@@ -152,6 +154,8 @@ std::string DeviceInfo::ToString() const {
   if (!compiler_available) text += ", no compiler";
   return text;
 }
+
+int RunLanes(const DeviceInfo& device) { return device.preferred_float_width >= 8 ? 8 : 4; }
 
 Result<std::vector<DeviceInfo>> ListDevices() {
   cl_uint platform_count = 0;

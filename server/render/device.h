@@ -52,12 +52,18 @@ struct DeviceInfo {
   uint64_t max_alloc_bytes = 0;      // CL_DEVICE_MAX_MEM_ALLOC_SIZE: the largest single buffer.
   uint32_t compute_units = 0;
   size_t max_work_group_size = 0;
-  bool available = false;           // CL_DEVICE_AVAILABLE.
-  bool compiler_available = false;  // CL_DEVICE_COMPILER_AVAILABLE: can build from source.
+  bool available = false;              // CL_DEVICE_AVAILABLE.
+  bool compiler_available = false;     // CL_DEVICE_COMPILER_AVAILABLE: can build from source.
+  uint32_t preferred_float_width = 1;  // CL_DEVICE_PREFERRED_VECTOR_WIDTH_FLOAT.
 
   // "0:0 CPU pthread-skylake… (Portable Computing Language), 16 CUs, 62.5 GiB (max buffer 16 GiB)".
   std::string ToString() const;
 };
+
+// The widest step of the ray casters' brick runs (kernels' OCTO_RUN_LANES): 8 samples at a time
+// where the device prefers float vectors of 8 or more (CPUs with AVX: one step fills a register),
+// else 4 (GPUs prefer scalars: each work item's lanes are registers of its own).
+int RunLanes(const DeviceInfo& device);
 
 // Every device of every platform, platforms in order, devices in order. No platform (no ICD
 // installed) is an empty list, not an error. A platform whose device query fails is skipped;

@@ -337,13 +337,15 @@ double NextTimeBias(double bias, double kernel_ms, double target_ms, int max_bia
   return bias;
 }
 
-Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeContext* context,
-                                                               ProgramCache* programs,
-                                                               DeviceOctree* device_octree,
-                                                               const Vec3& spacing_um,
-                                                               std::string_view build_options) {
+Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(
+    const ComputeContext* context, ProgramCache* programs, DeviceOctree* device_octree,
+    const Vec3& spacing_um, std::string_view build_options, int run_lanes) {
   if (context == nullptr || programs == nullptr || device_octree == nullptr) {
     return InvalidArgumentError("volume renderer: context, programs and octree are required");
+  }
+  if (run_lanes != 0 && run_lanes != 4 && run_lanes != 8) {
+    return InvalidArgumentError("volume renderer: run_lanes must be 0, 4 or 8, not " +
+                                std::to_string(run_lanes));
   }
   for (int a = 0; a < 3; ++a) {
     if (!std::isfinite(spacing_um[a]) || spacing_um[a] <= 0) {
@@ -354,7 +356,9 @@ Result<std::unique_ptr<VolumeRenderer>> VolumeRenderer::Create(const ComputeCont
   r->impl_ = std::make_unique<Impl>();
   r->impl_->context = context;
   r->impl_->programs = programs;
-  r->impl_->build_options = std::string(build_options);
+  r->impl_->build_options =
+      std::string(build_options) + " -DOCTO_RUN_LANES=" +
+      std::to_string(run_lanes != 0 ? run_lanes : RunLanes(context->device()));
   OCTO_ASSIGN_OR_RETURN(r->impl_->counters,
                         context->CreateBuffer(CL_MEM_READ_WRITE, OCTO_COUNTER_WORDS * 4));
   OCTO_ASSIGN_OR_RETURN(r->impl_->dummy, context->CreateBuffer(CL_MEM_READ_WRITE, 16));

@@ -165,12 +165,11 @@ class VolumeRenderer {
   // `context`, `programs` and `device_octree` must outlive the renderer; `spacing_um` is the
   // volume's voxel pitch (PhysicalSpacing). The ray-casting programs (one per mode and frame
   // kind) are built lazily on first use, with `build_options` added to the configuring defines
-  // (tests pass "-Werror").
-  static Result<std::unique_ptr<VolumeRenderer>> Create(const ComputeContext* context,
-                                                        ProgramCache* programs,
-                                                        DeviceOctree* device_octree,
-                                                        const Vec3& spacing_um,
-                                                        std::string_view build_options = "");
+  // (tests pass "-Werror"). `run_lanes`: the widest N-sample step of the brick runs, 4 or 8 (0:
+  // RunLanes of the device); every width gives the same image.
+  static Result<std::unique_ptr<VolumeRenderer>> Create(
+      const ComputeContext* context, ProgramCache* programs, DeviceOctree* device_octree,
+      const Vec3& spacing_um, std::string_view build_options = "", int run_lanes = 0);
   ~VolumeRenderer();
   VolumeRenderer(const VolumeRenderer&) = delete;
   VolumeRenderer& operator=(const VolumeRenderer&) = delete;

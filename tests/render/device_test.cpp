@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <numeric>
+#include <utility>
 #include <vector>
 
 #include "cl_test_env.h"
@@ -107,6 +108,16 @@ TEST(ChooseDeviceTest, UnmatchedOverridesAreNotFoundAndListTheDevices) {
   EXPECT_NE(none.status().message().find("no OpenCL device is installed"), std::string::npos);
 }
 
+// Eight-sample steps where the device prefers float vectors of 8 or more, else four.
+TEST(DeviceTest, RunLanesFollowThePreferredFloatVectorWidth) {
+  DeviceInfo d = FakeDevices()[0];
+  for (const auto& [width, lanes] :
+       std::vector<std::pair<uint32_t, int>>{{1, 4}, {2, 4}, {4, 4}, {8, 8}, {16, 8}}) {
+    d.preferred_float_width = width;
+    EXPECT_EQ(RunLanes(d), lanes) << width;
+  }
+}
+
 TEST(DeviceTest, ListedDevicesHavePlausibleProperties) {
   auto devices = ListDevices();
   ASSERT_TRUE(devices.ok()) << devices.status().ToString();
@@ -125,6 +136,8 @@ TEST(DeviceTest, ListedDevicesHavePlausibleProperties) {
     EXPECT_LE(d.max_alloc_bytes, d.global_memory_bytes);
     EXPECT_GT(d.compute_units, 0u);
     EXPECT_GT(d.max_work_group_size, 0u);
+    EXPECT_GE(d.preferred_float_width, 1u);
+    EXPECT_LE(d.preferred_float_width, 16u);
     // Overriding by index and by "platform:device" finds the same device.
     EXPECT_EQ(ChooseDevice(*devices, std::to_string(i))->device, d.device);
     EXPECT_EQ(ChooseDevice(*devices,

@@ -36,6 +36,7 @@ using ::octoscope::render::testing::Describe;
 using ::octoscope::render::testing::Gpu;
 using ::octoscope::render::testing::Hash;
 using ::octoscope::render::testing::ImageDiff;
+using ::octoscope::render::testing::kTestBuildOptions;
 using ::octoscope::render::testing::kTol;
 using ::octoscope::render::testing::MakeRig;
 using ::octoscope::render::testing::Reference;
@@ -816,6 +817,52 @@ TEST(VolumeRendererTest, CellRangeSkippingInsideNonEmptyBricksIsLossless) {
       EXPECT_LE(d.max_abs, kTol) << what << ": " << Describe(d);
     }
   }
+}
+
+// The brick runs' N-sample steps (OCTO_RUN_LANES 8 where the device prefers wide vectors, 4
+// elsewhere) compute every sample with the same expressions lane by lane: renderers of both
+// widths on the same octree give bit-identical images — three channels (one with gamma, one
+// with a LUT: their shading goes lane by lane), opaque enough to terminate inside a step, DVR,
+// MIP and MinIP, orthographic and perspective, refinement and converged full frames.
+TEST(VolumeRendererTest, EightAndFourSampleStepsGiveIdenticalImages) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(NoiseSpec({40, 48, 36}, 3));
+  ASSERT_NE(rig, nullptr);
+  const testing::ClTestEnv& env = testing::SharedClTestEnv();
+  Result<std::unique_ptr<VolumeRenderer>> four =
+      VolumeRenderer::Create(env.context, env.programs, rig->device.get(), rig->scene->spec.spacing,
+                             kTestBuildOptions, /*run_lanes=*/4);
+  ASSERT_TRUE(four.ok()) << four.status().ToString();
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    RenderParams params = ColourParams(mode);  // Gamma on channels 0 and 1, a LUT on 2.
+    params.channels[2].opacity_scale = 4;      // Rays terminate early.
+    for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
+      const std::string what =
+          std::string(RenderModeName(mode)) + " " + std::string(ProjectionName(p));
+      const Camera camera = Standard(*rig, StandardView::kIso, p, 36, 30);
+      FrameOptions refine = Refine();
+      refine.lod_bias = -4;
+      FrameStats eight_stats, four_stats;
+      const RenderImage eight = Gpu(*rig, camera, params, refine, &eight_stats);
+      Result<RenderImage> four_image = (*four)->Render(camera, params, refine, &four_stats);
+      ASSERT_TRUE(four_image.ok()) << four_image.status().ToString();
+      EXPECT_EQ(eight.rgba, four_image->rgba) << what;
+      EXPECT_EQ(eight_stats.samples, four_stats.samples) << what;
+      EXPECT_GT(eight_stats.samples, 0u) << what;
+      FrameOptions full;
+      full.lod_bias = -4;
+      full.upload.max_ms = 1e9;
+      FrameStats fs;
+      for (int i = 0; i < 6 && !fs.final; ++i) Gpu(*rig, camera, params, full, &fs);
+      ASSERT_TRUE(fs.final) << what;
+      Result<RenderImage> four_full = (*four)->Render(camera, params, full);
+      ASSERT_TRUE(four_full.ok()) << four_full.status().ToString();
+      EXPECT_EQ(Gpu(*rig, camera, params, full).rgba, four_full->rgba) << what;
+    }
+  }
+  EXPECT_FALSE(VolumeRenderer::Create(env.context, env.programs, rig->device.get(),
+                                      rig->scene->spec.spacing, kTestBuildOptions, 16)
+                   .ok());
 }
 
 // A node's faces on the volume's boundary need no half-voxel shell (nothing beyond them is read:
