@@ -68,34 +68,17 @@ float OctoDenseRead(__global const ushort* volume, OctoDenseFootprint fp, int c)
   return mix(mix(v00, v10, fp.f.y), mix(v01, v11, fp.f.y), fp.f.z);
 }
 
-/* N footprints at once (lane by lane OctoDenseFootprintAt's), channel c of their reads, and N
- * full segments of the ray state (N = 4, 8): a hand-written kernel would vectorise along the
- * ray as the renderer does, as wide as the renderer's runs. Forced inline, as the renderer's
- * N-sample helpers (octree_sampling.cl). OpenCL C has no templates: OCTO_DEFINE_DENSE_N writes
- * the family once per width. */
+/* N footprints at once (lane by lane OctoDenseFootprintAt's), channel c of their reads, and N full
+ * segments into the ray state (N = 4, 8; OCTO_TAKE_SAMPLES, as the renderer): a hand-written kernel
+ * would vectorise along the ray as the renderer does, as wide as the renderer's runs. Forced
+ * inline, as the renderer's N-sample helpers (octree_sampling.cl). OpenCL C has no templates:
+ * OCTO_DEFINE_DENSE_N writes the family once per width. */
 #define OCTO_DENSE_GATHER_4(volume, o, d)                                                          \
   (float4)((float)(volume)[(o).s0 + (d).s0], (float)(volume)[(o).s1 + (d).s1],                     \
            (float)(volume)[(o).s2 + (d).s2], (float)(volume)[(o).s3 + (d).s3])
 #define OCTO_DENSE_GATHER_8(volume, o, d)                                                          \
   (float8)(OCTO_DENSE_GATHER_4(volume, (o).lo, (d).lo),                                            \
            OCTO_DENSE_GATHER_4(volume, (o).hi, (d).hi))
-#if OCTO_MODE == OCTO_MODE_DVR
-#define OCTO_DENSE_STEP_STATE(N)                                                                   \
-  for (uint q = 0u; q < (uint)(N) / 4u; ++q) {                                                     \
-    float4 quarter[OCTO_DENSE_ACTIVE];                                                             \
-    for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) quarter[k] = OctoQuarter##N(v[k], q);              \
-    OctoCompositeFour(channels, lut, quarter, OCTO_DENSE_ACTIVE, ratio, acc, samples);             \
-    if (acc->w >= 0.999f) return true;                                                             \
-  }
-#elif OCTO_MODE == OCTO_MODE_MIP
-#define OCTO_DENSE_STEP_STATE(N)                                                                   \
-  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) extreme[k] = fmax(extreme[k], OctoMax##N(v[k]));     \
-  *samples += (uint)(N) * (uint)OCTO_DENSE_ACTIVE;
-#else
-#define OCTO_DENSE_STEP_STATE(N)                                                                   \
-  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) extreme[k] = fmin(extreme[k], OctoMin##N(v[k]));     \
-  *samples += (uint)(N) * (uint)OCTO_DENSE_ACTIVE;
-#endif
 #define OCTO_DEFINE_DENSE_N(N)                                                                     \
   typedef struct OctoDenseFootprint##N {                                                           \
     ulong##N o;                                                                                    \
@@ -165,7 +148,9 @@ float OctoDenseRead(__global const ushort* volume, OctoDenseFootprint fp, int c)
     for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {                                                  \
       v[k] = OctoDenseRead##N(volume, fp, channels[k].channel);                                    \
     }                                                                                              \
-    OCTO_DENSE_STEP_STATE(N)                                                                       \
+    uint taken_lanes;                                                                              \
+    uint* taken = &taken_lanes;                                                                    \
+    OCTO_TAKE_SAMPLES(N, OCTO_DENSE_ACTIVE, OCTO_DENSE_ACTIVE)                                     \
     return false;                                                                                  \
   }
 OCTO_DEFINE_DENSE_N(4)

@@ -321,33 +321,12 @@ uint OctoFirstSegmentBeyond(float3 entry, float3 inv_u, float entry_abs, float3 
   return target >= (float)band_n ? band_n : (uint)target;
 }
 
-/* N samples of a brick run at once (N = 4, 8), `arc` their midpoints' arcs: positions,
- * footprints and interpolation as N-lane vectors (the same expressions lane by lane as the
- * run's single sample), transfer function and opacity four lanes at a time (OctoShade4), then the
- * ray state updated in sample order. Returns true when the ray terminates (DVR); *taken: the
+/* N samples of a brick run at once (N = 4, 8), `arc` their midpoints' arcs: positions, footprints
+ * and interpolation as N-lane vectors (the same expressions lane by lane as the run's single
+ * sample), then the ray state (OCTO_TAKE_SAMPLES: DVR's transfer function, opacity and compositing
+ * four lanes at a time, in sample order). Returns true when the ray terminates (DVR); *taken: the
  * samples taken (N unless it terminated). The run's constants as in RayCast. OpenCL C has no
  * templates: OCTO_DEFINE_RUN_STEP_N writes it once per width. */
-#if OCTO_MODE == OCTO_MODE_DVR
-#define OCTO_RUN_STEP_STATE(N)                                                                     \
-  for (uint q = 0u; q < (uint)(N) / 4u; ++q) {                                                     \
-    float4 quarter[OCTO_STATE_CHANNELS];                                                           \
-    for (int k = 0; k < OCTO_ACTIVE_N; ++k) quarter[k] = OctoQuarter##N(v[k], q);                  \
-    const uint done = OctoCompositeFour(channels, lut, quarter, OCTO_ACTIVE_N, ratio, acc,         \
-                                        samples);                                                  \
-    if (acc->w >= 0.999f) {                                                                        \
-      *taken = 4u * q + done;                                                                      \
-      return true;                                                                                 \
-    }                                                                                              \
-  }
-#elif OCTO_MODE == OCTO_MODE_MIP
-#define OCTO_RUN_STEP_STATE(N)                                                                     \
-  for (int k = 0; k < OCTO_ACTIVE_N; ++k) extreme[k] = fmax(extreme[k], OctoMax##N(v[k]));         \
-  *samples += (uint)(N) * (uint)OCTO_ACTIVE_N;
-#else
-#define OCTO_RUN_STEP_STATE(N)                                                                     \
-  for (int k = 0; k < OCTO_ACTIVE_N; ++k) extreme[k] = fmin(extreme[k], OctoMin##N(v[k]));         \
-  *samples += (uint)(N) * (uint)OCTO_ACTIVE_N;
-#endif
 #define OCTO_DEFINE_RUN_STEP_N(N)                                                                  \
   __attribute__((always_inline)) bool OctoRunStep##N(                                              \
       OctoRenderFrame f, OctoTreeGeometry g, __global const OctoChannelParams* channels,           \
@@ -374,8 +353,7 @@ uint OctoFirstSegmentBeyond(float3 entry, float3 inv_u, float entry_abs, float3 
     for (int k = 0; k < OCTO_ACTIVE_N; ++k) {                                                      \
       v[k] = OctoTrilinearRead##N(brick, tri, OCTO_CHANNEL_OF(k));                                 \
     }                                                                                              \
-    *taken = N;                                                                                    \
-    OCTO_RUN_STEP_STATE(N)                                                                         \
+    OCTO_TAKE_SAMPLES(N, OCTO_ACTIVE_N, OCTO_STATE_CHANNELS)                                       \
     return false;                                                                                  \
   }
 OCTO_DEFINE_RUN_STEP_N(4)
@@ -695,14 +673,14 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           }
           while (jj < run_end) {
             /* The stretch to sample, [jj, stop), then the inert cell's midpoints [.., skip_to)
-             * jumped over: consecutive live cells are gathered into one stretch, so its samples
-             * run four at a time across cell faces. DVR's inert test does not depend on the ray.
-             * MIP's (MinIP's) does, and the gathered cells are not sampled yet: a cell ahead is
-             * tested against `ahead`, the extremum as it will be at least (at most) once they
+             * jumped over: consecutive live cells are gathered into one stretch, so its samples run
+             * eight or four at a time across cell faces. DVR's inert test does not depend on the
+             * ray. MIP's (MinIP's) does, and the gathered cells are not sampled yet: a cell ahead
+             * is tested against `ahead`, the extremum as it will be at least (at most) once they
              * are — each live cell that gets a sample raises it to at least its range's minimum
              * (lowers it to at most its maximum: every sample attributed to a cell lies in its
-             * range). Inert for `ahead` is inert for the true extremum then; a cell that only
-             * the true one makes inert is sampled, which cannot change the ray. */
+             * range). Inert for `ahead` is inert for the true extremum then; a cell that only the
+             * true one makes inert is sampled, which cannot change the ray. */
             uint stop = run_end;
             uint skip_to = 0u;
             if (dda) {
