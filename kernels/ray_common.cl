@@ -95,10 +95,19 @@ __attribute__((always_inline)) OctoRay OctoPixelRay(OctoRenderFrame f, int px, i
   return r;
 }
 
+/* Four windowed values (in [0, 1]) raised to `gamma`, lane by lane. The one implementation of
+ * the gamma: the scalar path (OctoWindowed) takes lane 0 of the same call, so a sample's value
+ * does not depend on whether a single step or an N-sample step takes it (a vector builtin may
+ * round differently from the scalar one), and the four lanes go through one vector call instead
+ * of four scalar ones. */
+float4 OctoGamma4(float4 t, float gamma) {
+  return pow(t, (float4)(gamma));
+}
+
 /* WindowedValue of render_params.h: window, clamp to [0, 1], gamma. */
 float OctoWindowed(__global const OctoChannelParams* ch, float v) {
   float t = clamp((v - ch->window_lo) * ch->inv_window, 0.0f, 1.0f);
-  if (ch->gamma != 1.0f) t = pow(t, ch->gamma);
+  if (ch->gamma != 1.0f) t = OctoGamma4((float4)(t), ch->gamma).s0;
   return t;
 }
 
@@ -144,18 +153,25 @@ OctoRatio OctoOpacityRatio(float ratio) {
   return r;
 }
 
-/* CorrectOpacity of render_params.h: 1 - (1 - a)^ratio, precise for tiny alphas. A ratio of 2^s
- * is s squarings of the transparency, written b <- 1 - (1 - b)^2 = b (2 - b) so tiny alphas keep
- * their precision: a few multiplies instead of log1p and expm1 (the DVR inner loop's dearest
- * part). */
-float OctoCorrectOpacity(float a, OctoRatio r) {
-  if (a <= 0.0f) return 0.0f;
-  if (a >= 1.0f) return 1.0f;
+/* CorrectOpacity of render_params.h for four alphas in [0, 1]: 1 - (1 - a)^ratio, precise for
+ * tiny alphas; 0 and 1 stay exact. A ratio of 2^s is s squarings of the transparency, written
+ * b <- 1 - (1 - b)^2 = b (2 - b) so tiny alphas keep their precision: a few multiplies. Any other
+ * ratio (samples not 2^s reference spacings apart: anisotropic voxels seen obliquely, a step such
+ * as 1.5) takes log1p and expm1 as one vector call each, not four scalar ones (the DVR inner
+ * loop's dearest part). The one implementation: the scalar path (OctoCorrectOpacity) takes lane 0
+ * of the same call, as OctoGamma4. */
+float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   if (r.squarings >= 0) {
     for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
     return a;
   }
-  return -expm1(r.ratio * log1p(-a));
+  const float4 corrected = -expm1(r.ratio * log1p(-a));
+  return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
+}
+
+/* The same for one alpha (any value: clamped into [0, 1] first). */
+float OctoCorrectOpacity(float a, OctoRatio r) {
+  return OctoCorrectOpacity4((float4)(clamp(a, 0.0f, 1.0f)), r).s0;
 }
 
 /* The position of a channel's sample: transform * p; false when it leaves the volume box. */
@@ -219,15 +235,13 @@ float OctoMin8(float8 v) { return OctoMin4(fmin(v.lo, v.hi)); }
 
 /* Four samples' transfer function and opacity correction for one channel, lane by lane the
  * values OctoMixChannel mixes: straight colour in *r, *g, *b, the corrected alpha returned. The
- * plain colour ramp and the squarings are vector operations (the same IEEE operations per lane);
- * gamma, LUTs and non-power-of-two ratios go lane by lane through the scalar functions. */
+ * plain colour ramp, the gamma and the opacity correction are vector operations (the same
+ * operations per lane as the scalar path's: OctoGamma4, OctoCorrectOpacity4); LUTs go lane by
+ * lane through OctoTransfer. */
 float4 OctoShade4(__global const OctoChannelParams* ch, __global const float4* lut, float4 v,
                   OctoRatio ratio, float4* r, float4* g, float4* b) {
   float4 t = clamp((v - ch->window_lo) * ch->inv_window, 0.0f, 1.0f);
-  if (ch->gamma != 1.0f) {
-    t = (float4)(pow(t.s0, ch->gamma), pow(t.s1, ch->gamma), pow(t.s2, ch->gamma),
-                 pow(t.s3, ch->gamma));
-  }
+  if (ch->gamma != 1.0f) t = OctoGamma4(t, ch->gamma);
   float4 a;
   if (ch->lut >= 0) {
     const float4 c0 = OctoTransfer(ch, lut, t.s0);
@@ -245,13 +259,7 @@ float4 OctoShade4(__global const OctoChannelParams* ch, __global const float4* l
     *b = ch->color[2] * t;
     a = clamp(t * ch->opacity_scale, 0.0f, 1.0f);
   }
-  if (ratio.squarings >= 0) {
-    /* a is in [0, 1], where b (2 - b) keeps 0 and 1 exactly, as the scalar early returns. */
-    for (int s = 0; s < ratio.squarings; ++s) a *= 2.0f - a;
-    return a;
-  }
-  return (float4)(OctoCorrectOpacity(a.s0, ratio), OctoCorrectOpacity(a.s1, ratio),
-                  OctoCorrectOpacity(a.s2, ratio), OctoCorrectOpacity(a.s3, ratio));
+  return OctoCorrectOpacity4(a, ratio); /* a is in [0, 1]. */
 }
 
 /* DVR: the sample's mixed channels (premultiplied colour sum, product of transparencies)
