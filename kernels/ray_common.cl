@@ -208,21 +208,6 @@ float OctoMixChannel(__global const OctoChannelParams* ch, __global const float4
   return rgba.w;
 }
 
-/* Lane `lane` (0..3) of v. */
-float OctoLane(float4 v, uint lane) {
-  return lane == 0u ? v.s0 : lane == 1u ? v.s1 : lane == 2u ? v.s2 : v.s3;
-}
-
-/* Lane `lane` of one channel's four shaded samples (OctoShade4's colours and corrected alphas)
- * mixed into a sample's premultiplied colour sum and transparency product: OctoMixChannel's
- * mixing, the same operations. */
-void OctoMixLane(float4 r, float4 g, float4 b, float4 a, uint lane, float3* mix_rgb,
-                 float* transmit) {
-  const float alpha = OctoLane(a, lane);
-  *mix_rgb += (float3)(OctoLane(r, lane), OctoLane(g, lane), OctoLane(b, lane)) * alpha;
-  *transmit *= 1.0f - alpha;
-}
-
 /* Quarter q (lanes 4q .. 4q + 3) of an N-lane vector, and the largest (smallest) lane: exact,
  * so any order of fmax (fmin) gives the sequential result. */
 float4 OctoQuarter4(float4 v, uint q) {
@@ -273,30 +258,38 @@ float4 OctoCompositeUnder(float4 acc, float3 mix_rgb, float transmit) {
   return acc;
 }
 
-/* DVR: four samples of `active` channels (v[k]: channel k's values) shaded (OctoShade4), mixed
- * per sample and composited under *acc in sample order, stopping at early termination (then
- * acc->w >= 0.999). Returns the samples composited; adds their channel samples to *samples. */
+/* DVR: four samples of `active` channels (v[k]: channel k's values) shaded (OctoShade4) and
+ * mixed per sample as vectors over the four lanes (OctoMixChannel's operations lane by lane),
+ * then composited under *acc in sample order, stopping at early termination (then acc->w >=
+ * 0.999). Returns the samples composited; adds their channel samples to *samples. */
 __attribute__((always_inline)) uint OctoCompositeFour(__global const OctoChannelParams* channels,
                                                       __global const float4* lut, const float4* v,
                                                       int active, OctoRatio ratio, float4* acc,
                                                       uint* samples) {
-  float4 shade_r[OCTO_MAX_ACTIVE_CHANNELS];
-  float4 shade_g[OCTO_MAX_ACTIVE_CHANNELS];
-  float4 shade_b[OCTO_MAX_ACTIVE_CHANNELS];
-  float4 shade_a[OCTO_MAX_ACTIVE_CHANNELS];
+  float4 mix_r = (float4)(0.0f);
+  float4 mix_g = (float4)(0.0f);
+  float4 mix_b = (float4)(0.0f);
+  float4 transmit = (float4)(1.0f);
   for (int k = 0; k < active; ++k) {
-    shade_a[k] = OctoShade4(&channels[k], lut, v[k], ratio, &shade_r[k], &shade_g[k], &shade_b[k]);
+    float4 r;
+    float4 g;
+    float4 b;
+    const float4 a = OctoShade4(&channels[k], lut, v[k], ratio, &r, &g, &b);
+    mix_r += r * a;
+    mix_g += g * a;
+    mix_b += b * a;
+    transmit *= 1.0f - a;
   }
-  for (uint lane = 0u; lane < 4u; ++lane) {
-    float3 mix_rgb = (float3)(0.0f);
-    float transmit = 1.0f;
-    for (int k = 0; k < active; ++k) {
-      OctoMixLane(shade_r[k], shade_g[k], shade_b[k], shade_a[k], lane, &mix_rgb, &transmit);
-    }
-    *samples += (uint)active;
-    *acc = OctoCompositeUnder(*acc, mix_rgb, transmit);
-    if (acc->w >= 0.999f) return lane + 1u;
-  }
+  /* The lanes one after another: each composites under the previous ones. */
+#define OCTO_COMPOSITE_LANE(L, S)                                                                  \
+  *samples += (uint)active;                                                                        \
+  *acc = OctoCompositeUnder(*acc, (float3)(mix_r.S, mix_g.S, mix_b.S), transmit.S);                \
+  if (acc->w >= 0.999f) return L + 1u;
+  OCTO_COMPOSITE_LANE(0u, s0)
+  OCTO_COMPOSITE_LANE(1u, s1)
+  OCTO_COMPOSITE_LANE(2u, s2)
+  OCTO_COMPOSITE_LANE(3u, s3)
+#undef OCTO_COMPOSITE_LANE
   return 4u;
 }
 
