@@ -167,6 +167,8 @@ float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
     for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
     return a;
   }
+  /* Transparent (and opaque) samples need no correction: without skipping most samples are. */
+  if (!any(isgreater(a, 0.0f) & isless(a, 1.0f))) return a;
   const float4 corrected = -expm1(r.ratio * log1p(-a));
   return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
 }
