@@ -173,7 +173,8 @@ float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
 }
 
-/* The same for one alpha (any value: clamped into [0, 1] first). */
+/* The same for one alpha (any value: clamped into [0, 1] first). GPU compilers split vectors into
+ * scalars, so there the unused lanes of this call (and of OctoWindowed's) are dead code. */
 float OctoCorrectOpacity(float a, OctoRatio r) {
   return OctoCorrectOpacity4((float4)(clamp(a, 0.0f, 1.0f)), r).s0;
 }
