@@ -876,6 +876,11 @@ int RunBenchRender(std::span<const std::string> args) {
   // general opacity correction: the serve demo's are 0.5 x 0.5 x 1 µm).
   auto open_options = VolumeOptionsFromFlags(flags);
   if (!open_options.ok()) return Usage(open_options.status().message(), flags);
+  if (flags.positionals().empty()) {
+    for (const char* name : {"series", "time", "level", "decode-threads"}) {
+      if (flags.Get(name)) return Usage(std::string("--") + name + " needs an INPUT", flags);
+    }
+  }
 
   // 1. The volume, as stored values in RAM.
   std::unique_ptr<io::VolumeSource> source;
@@ -885,6 +890,7 @@ int RunBenchRender(std::span<const std::string> args) {
     if (!opened.ok()) return Fail(opened.status().WithContext(flags.positionals()[0]).ToString());
     source = std::move(*opened);
     description = flags.positionals()[0];
+    if (auto spacing = flags.Get("spacing")) description += " (--spacing " + *spacing + ")";
   } else {
     io::SyntheticEmbryoOptions demo;
     demo.size = {*demo_size, *demo_size, *demo_size};

@@ -203,6 +203,8 @@ TEST(BenchCommandTest, BadArgumentsAreUsageErrors) {
   EXPECT_EQ(RunOctoscope("bench render --no-such-flag").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --spacing 0,1,1").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --spacing 1,1").exit_code, 64);
+  EXPECT_EQ(RunOctoscope("bench render --level 1").exit_code, 64);  // The demo has one level.
+  EXPECT_EQ(RunOctoscope("bench render --time 2").exit_code, 64);
   EXPECT_EQ(RunOctoscope("bench render --help").exit_code, 0);
   EXPECT_EQ(RunOctoscope("bench render /no/such/file.tif").exit_code, 2);
 }

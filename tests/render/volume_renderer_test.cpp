@@ -844,12 +844,15 @@ TEST(VolumeRendererTest, ShadingDoesNotDependOnTheStepThatTakesASample) {
   params.channels[0].gamma = 0.6;
   params.channels[1].gamma = 1.7;
   for (ChannelParams& ch : params.channels) {
-    ch.window = 20000;
-    ch.level = 12000;  // Transparent below 2000: all the dim noise.
+    // Transparent below 2000 (all the dim noise); the blobs' values spread over (0, 1), where the
+    // gamma is no identity.
+    ch.window = 58000;
+    ch.level = 31000;
     ch.opacity_scale = 0.3;
   }
+  // Both views are oblique to the voxels' anisotropy: segments of no power-of-two ratio.
   for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
-    for (StandardView view : {StandardView::kIso, StandardView::kX}) {
+    for (StandardView view : {StandardView::kIso, StandardView::kZ}) {
       const std::string what =
           std::string(ProjectionName(p)) + " " + std::string(StandardViewName(view));
       const Camera camera = Standard(*rig, view, p, 40, 40);
@@ -863,10 +866,36 @@ TEST(VolumeRendererTest, ShadingDoesNotDependOnTheStepThatTakesASample) {
   }
 }
 
+// Gammas so far from 1 that they round to 0 or infinity in float (valid: finite and > 0) keep the
+// pow limits at the window's ends: t = 0 stays 0, t = 1 stays 1 (exp2(gamma log2 t) alone is NaN
+// there), so the images equal the double-precision reference's.
+TEST(VolumeRendererTest, ExtremeGammasKeepTheWindowsEnds) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(BlobPerBrickSpec(7));
+  ASSERT_NE(rig, nullptr);
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+    params.channels[0].gamma = 1e-50;
+    params.channels[1].gamma = 1e39;
+    for (ChannelParams& ch : params.channels) {
+      ch.window = 40000;  // Values from 0 to above the window: t = 0, (0, 1) and 1.
+      ch.level = 22000;
+      ch.opacity_scale = 0.3;
+    }
+    const Camera camera = Standard(*rig, StandardView::kIso, Projection::kPerspective, 40, 40);
+    FrameOptions options = Refine();
+    options.lod_bias = -4;
+    const RenderImage image = Gpu(*rig, camera, params, options);
+    for (float v : image.rgba) ASSERT_TRUE(std::isfinite(v)) << RenderModeName(mode);
+    const ImageDiff d = CompareImages(image, Reference(*rig, camera, params));
+    EXPECT_LE(d.max_abs, kTol) << RenderModeName(mode) << ": " << Describe(d);
+  }
+}
+
 // The brick runs' N-sample steps (OCTO_RUN_LANES 8 where the device prefers wide vectors, 4
 // elsewhere) compute every sample with the same expressions lane by lane: renderers of both
-// widths on the same octree give bit-identical images — three channels (one with gamma, one
-// with a LUT: their shading goes lane by lane), opaque enough to terminate inside a step, DVR,
+// widths on the same octree give bit-identical images — three channels (gamma on two, a LUT
+// on one: its lookups go lane by lane), opaque enough to terminate inside a step, DVR,
 // MIP and MinIP, orthographic and perspective, refinement and converged full frames.
 TEST(VolumeRendererTest, EightAndFourSampleStepsGiveIdenticalImages) {
   OCTO_REQUIRE_OPENCL_DEVICE();
