@@ -19,6 +19,7 @@
 #include "app/commands.h"
 #include "app/octree_loading.h"
 #include "app/volume_options.h"
+#include "dataset/cache_setup.h"
 #include "dataset/display_defaults.h"
 #include "encode/image_encoder.h"
 #include "io/open_volume.h"
@@ -494,7 +495,7 @@ int RunRender(std::span<const std::string> args) {
   // 4b. The CPU reference (benchmarks' oracle): the scan in RAM as stored values, one image.
   if (flags.Has("cpu-reference")) {
     if (slice || !planes.empty()) return Usage("--cpu-reference renders 3-D views only", flags);
-    if (std::error_code ec; std::filesystem::is_directory(input, ec)) {
+    if (dataset::IsCacheDirectory(input)) {
       return Fail(input, InvalidArgumentError("--cpu-reference needs the scan, not a cache"));
     }
     auto source = io::OpenVolume(input, *open_options);

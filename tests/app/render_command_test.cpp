@@ -205,6 +205,31 @@ TEST_F(RenderCommandTest, CpuReferenceMeetsTheMipContractAndNeedsTheScan) {
   EXPECT_NE(r.err.find("needs the scan"), std::string::npos) << r.err;
 }
 
+// A scan that is a directory (a slice folder) is a scan, not a cache: --cpu-reference renders it,
+// and the OpenCL renderer's image of the same view equals the reference's.
+TEST_F(RenderCommandTest, CpuReferenceRendersASliceFolder) {
+  const fs::path folder = fs::path(OCTOSCOPE_TESTDATA) / "cellfinder_crop_planes";
+  const std::string flags =
+      " --spacing 2,2,5 --view iso --size 48x40 --mode mip --defaults raw --cache " +
+      Quote(*dir_ / "planes-cache");
+  const fs::path ref_png = *dir_ / "planes-reference.png";
+  const fs::path gpu_png = *dir_ / "planes-gpu.png";
+  RunResult r = Render(folder, ref_png, "--cpu-reference" + flags);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = Render(folder, gpu_png, "--refine --lod-bias -8" + flags);  // Level 0, as the reference.
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const DecodedPng ref = DecodeTestPng(testing::ReadAll(ref_png));
+  const DecodedPng gpu = DecodeTestPng(testing::ReadAll(gpu_png));
+  ASSERT_TRUE(ref.ok && gpu.ok);
+  ASSERT_EQ(ref.pixels.size(), gpu.pixels.size());
+  int lit = 0;
+  for (size_t i = 0; i < ref.pixels.size(); ++i) {
+    EXPECT_LE(std::abs(ref.pixels[i] - gpu.pixels[i]), 2) << "byte " << i;
+    if (i % ref.channels != 3 && ref.pixels[i] > 0) ++lit;
+  }
+  EXPECT_GT(lit, 100);  // The scan is in view.
+}
+
 TEST_F(RenderCommandTest, MipContractSingleBrickVolume) {
   // The whole octree is one level-0 root with a brick: it must be requested and sampled too.
   const fs::path out = *dir_ / "single.png";
