@@ -181,6 +181,18 @@ float OctoCorrectOpacity(float a, OctoRatio r) {
   return OctoCorrectOpacity4((float4)(clamp(a, 0.0f, 1.0f)), r).s0;
 }
 
+/* How far a channel's transformed position may leave the volume box by rounding alone, per axis:
+ * a few ulps of the largest terms of transform * p (p in the box). Anything further gives no
+ * sample; a wider tolerance would take samples the reference (1e-9 of the box in double) leaves
+ * out. */
+float3 OctoChannelTolerance(__global const float* m, float3 box) {
+  const float3 span = (float3)(fabs(m[0]) * box.x + fabs(m[1]) * box.y + fabs(m[2]) * box.z,
+                               fabs(m[4]) * box.x + fabs(m[5]) * box.y + fabs(m[6]) * box.z,
+                               fabs(m[8]) * box.x + fabs(m[9]) * box.y + fabs(m[10]) * box.z) +
+                      fabs((float3)(m[3], m[7], m[11]));
+  return 8.0f * FLT_EPSILON * span;
+}
+
 /* The position of a channel's sample: transform * p; false when it leaves the volume box. */
 bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRenderFrame f,
                          float3* q) {
@@ -192,13 +204,39 @@ bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRen
   const float3 r = (float3)(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
                             m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
                             m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
-  /* Rounding may leave the box by a hair; anything further gives no sample. */
   const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
-  const float tolerance = 1e-5f * fmax(box.x, fmax(box.y, box.z));
+  const float3 tolerance = OctoChannelTolerance(m, box);
   if (!(all(r >= -tolerance) && all(r <= box + tolerance))) return false;
   *q = r;
   return true;
 }
+
+/* N positions at once (N = 4, 8; lane by lane OctoChannelPosition's, the same expressions):
+ * the transformed positions in *rx, *ry, *rz; false when any lane leaves the volume box. */
+#define OCTO_DEFINE_CHANNEL_POSITIONS_N(N)                                                         \
+  __attribute__((always_inline)) bool OctoChannelPositions##N(                                     \
+      __global const OctoChannelParams* ch, float##N px, float##N py, float##N pz,                 \
+      OctoRenderFrame f, float##N* rx, float##N* ry, float##N* rz) {                               \
+    if (ch->identity) {                                                                            \
+      *rx = px;                                                                                    \
+      *ry = py;                                                                                    \
+      *rz = pz;                                                                                    \
+      return true;                                                                                 \
+    }                                                                                              \
+    const __global float* m = ch->transform;                                                       \
+    *rx = m[0] * px + m[1] * py + m[2] * pz + m[3];                                                \
+    *ry = m[4] * px + m[5] * py + m[6] * pz + m[7];                                                \
+    *rz = m[8] * px + m[9] * py + m[10] * pz + m[11];                                              \
+    const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);                            \
+    const float3 tolerance = OctoChannelTolerance(m, box);                                         \
+    return all((*rx >= -tolerance.x) & (*ry >= -tolerance.y) & (*rz >= -tolerance.z) &             \
+               (*rx <= box.x + tolerance.x) & (*ry <= box.y + tolerance.y) &                       \
+               (*rz <= box.z + tolerance.z));                                                      \
+  }
+OCTO_DEFINE_CHANNEL_POSITIONS_N(4)
+#if OCTO_RUN_LANES >= 8
+OCTO_DEFINE_CHANNEL_POSITIONS_N(8)
+#endif
 
 /* DVR: channel value v (stored) of a sample mixed into the sample's premultiplied colour sum and
  * transparency product (per-sample intermixing), its opacity corrected by `ratio`

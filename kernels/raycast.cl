@@ -18,10 +18,12 @@
  * (the last segment shortened to the band's end), never accumulated. Per sample and enabled
  * channel: its transformed position (outside the box: no sample), clamped into the valid extent
  * of the level (so clamp-to-edge equals the reference's and no virtual voxel is read), the octree
- * node (OctoFindNode; without transforms reused while the sample stays in the wanted node's box),
- * trilinear brick sample or node average, transfer function, compositing. Empty-space skipping
- * (docs/rendering.md) jumps over inert nodes (node value ranges), inert cells of resident bricks
- * (cell ranges) and brickless leaves, without changing the image.
+ * node (OctoFindNode; reused while the sample stays in the wanted node's box: one hit for all
+ * channels without transforms, one per channel with them), trilinear brick sample or node
+ * average, transfer function, compositing. Inside a brick resident at the sample's level, samples
+ * go eight or four at a time (brick runs; with transforms, transformed runs). Empty-space skipping
+ * (docs/rendering.md; without transforms) jumps over inert nodes (node value ranges), inert cells
+ * of resident bricks (cell ranges) and brickless leaves, without changing the image.
  */
 #include "feedback.h"
 #include "node_format.h"
@@ -361,6 +363,52 @@ OCTO_DEFINE_RUN_STEP_N(4)
 OCTO_DEFINE_RUN_STEP_N(8)
 #endif
 
+/* With channel transforms: N samples of a transformed run at once, every channel read from its
+ * cached fast hit's brick (RayCast's ch_* state: bricks, wanted boxes and brick origins in the
+ * band's level coordinates; level_down = 2^-level). Per lane the same expressions and tests as
+ * the single sample's (OctoChannelPosition, the clamp to the level, the cached box): when any
+ * lane of any channel leaves the volume box or its channel's box, nothing is taken (*taken 0)
+ * and the single-sample path goes on. Otherwise as OctoRunStepN. */
+#define OCTO_DEFINE_TRANSFORM_STEP_N(N)                                                            \
+  __attribute__((always_inline)) bool OctoTransformStep##N(                                        \
+      OctoRenderFrame f, OctoTreeGeometry g, __global const OctoChannelParams* channels,           \
+      __global const float4* lut, __global const ushort* const* bricks, float##N arc,              \
+      float3 entry, float3 u, float level_down, float3 valid_hi, const float3* lo,                 \
+      const float3* hi, const float3* origin, OctoRatio ratio, float4* acc, float* extreme,        \
+      uint* samples, uint* taken) {                                                                \
+    (void)lut;                                                                                     \
+    (void)ratio;                                                                                   \
+    (void)acc;                                                                                     \
+    (void)extreme;                                                                                 \
+    const float##N px = entry.x + u.x * arc;                                                       \
+    const float##N py = entry.y + u.y * arc;                                                       \
+    const float##N pz = entry.z + u.z * arc;                                                       \
+    float##N v[OCTO_STATE_CHANNELS];                                                               \
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) {                                                      \
+      float##N rx;                                                                                 \
+      float##N ry;                                                                                 \
+      float##N rz;                                                                                 \
+      *taken = 0u;                                                                                 \
+      if (!OctoChannelPositions##N(&channels[k], px, py, pz, f, &rx, &ry, &rz)) return false;      \
+      const float##N lx = clamp(rx * level_down, 0.5f, valid_hi.x);                                \
+      const float##N ly = clamp(ry * level_down, 0.5f, valid_hi.y);                                \
+      const float##N lz = clamp(rz * level_down, 0.5f, valid_hi.z);                                \
+      if (!all((lx >= lo[k].x) & (ly >= lo[k].y) & (lz >= lo[k].z) & (lx < hi[k].x) &             \
+               (ly < hi[k].y) & (lz < hi[k].z))) {                                                 \
+        return false;                                                                              \
+      }                                                                                            \
+      const OctoTrilinear##N tri = OctoTrilinearLocal##N(                                          \
+          g, lx + 0.5f - origin[k].x, ly + 0.5f - origin[k].y, lz + 0.5f - origin[k].z);           \
+      v[k] = OctoTrilinearRead##N(bricks[k], tri, OCTO_CHANNEL_OF(k));                             \
+    }                                                                                              \
+    OCTO_TAKE_SAMPLES(N, OCTO_ACTIVE_N, OCTO_STATE_CHANNELS)                                       \
+    return false;                                                                                  \
+  }
+OCTO_DEFINE_TRANSFORM_STEP_N(4)
+#if OCTO_RUN_LANES >= 8
+OCTO_DEFINE_TRANSFORM_STEP_N(8)
+#endif
+
 __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, OctoTreeGeometry g,
                       OctoRenderFrame f, __global const OctoChannelParams* channels,
                       __global const float4* lut, volatile __global uint* request_flags,
@@ -500,6 +548,16 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     float3 entry_l = entry;
     float3 u_l = u;
     float3 valid_hi = (float3)(0.0f);
+    /* With transforms: per enabled channel, the node hit of its previous sample and that hit's
+     * wanted box (band level coordinates), reused as shared_hit is while the channel's position
+     * stays inside at the same level (ch_level -1: none yet). */
+    OctoNodeHit ch_hit[OCTO_STATE_CHANNELS];
+    __global const ushort* ch_brick[OCTO_STATE_CHANNELS];
+    float3 ch_lo[OCTO_STATE_CHANNELS];
+    float3 ch_hi[OCTO_STATE_CHANNELS];
+    float3 ch_origin[OCTO_STATE_CHANNELS]; /* The hit's brick origin, level coordinates. */
+    int ch_level[OCTO_STATE_CHANNELS];
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) ch_level[k] = -1;
     for (;;) {
       if (!band_ready) {
         /* The band of `level` ends where the footprint reaches 2^(level + 1). */
@@ -838,6 +896,92 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         }
       }
 
+      /* With transforms: each channel's position (outside the box: no sample), clamped to the
+       * level, and its node hit (traversed only when it left the channel's cached box). */
+      bool ch_in[OCTO_STATE_CHANNELS];
+      bool ch_fresh[OCTO_STATE_CHANNELS];
+      float3 ch_q[OCTO_STATE_CHANNELS];
+      if (!OCTO_ALL_IDENTITY) {
+        for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+          ch_in[k] = OctoChannelPosition(&channels[k], p, f, &ch_q[k]);
+          if (!ch_in[k]) continue;
+          const float3 ql = clamp(ch_q[k] * ldexp(1.0f, -level), 0.5f, valid_hi);
+          ch_q[k] = ql * ldexp(1.0f, level); /* OctoClampToLevel, exactly. */
+          ch_fresh[k] = !(ch_level[k] == level && all(ql >= ch_lo[k]) && all(ql < ch_hi[k]));
+          if (ch_fresh[k]) {
+            const OctoNodeHit hit = OctoFindNode(nodes, g, ch_q[k], level);
+            const float3 size =
+                convert_float3(OctoBrickSize(g)) * ldexp(1.0f, hit.wanted_level - level);
+            ch_hit[k] = hit;
+            ch_brick[k] = OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, hit);
+            ch_lo[k] = convert_float3(OctoNodeIndex(ch_q[k], hit.wanted_level, g).xyz) * size;
+            ch_hi[k] = ch_lo[k] + size;
+            ch_origin[k] = convert_float3(hit.index.xyz * OctoBrickSize(g));
+            ch_level[k] = level;
+          }
+        }
+        /* Transformed runs: while every channel's hit is its wanted node, resident at the
+         * sample's level, full segments go eight or four at a time (OctoTransformStepN, which
+         * tests each lane as this path does), up to where the first channel's transformed line
+         * leaves its box (an estimate: the steps' tests decide) or the band's last segment. */
+        bool run = true;
+        uint run_end = band_n - 1u;
+        const float scale = ldexp(1.0f, level);
+        for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+          run = ch_in[k];
+          if (!run) break;
+          const OctoNodeHit hit = ch_hit[k];
+          run = OctoNodeInBuffer(hit.word0) && hit.node == hit.wanted && hit.level == level;
+          if (!run) break;
+          float3 e = entry;
+          float3 w = u;
+          if (!channels[k].identity) {
+            const __global float* m = channels[k].transform;
+            e = (float3)(m[0] * entry.x + m[1] * entry.y + m[2] * entry.z + m[3],
+                         m[4] * entry.x + m[5] * entry.y + m[6] * entry.z + m[7],
+                         m[8] * entry.x + m[9] * entry.y + m[10] * entry.z + m[11]);
+            w = (float3)(m[0] * u.x + m[1] * u.y + m[2] * u.z, m[4] * u.x + m[5] * u.y + m[6] * u.z,
+                         m[8] * u.x + m[9] * u.y + m[10] * u.z);
+          }
+          run_end = min(run_end, OctoFirstSegmentBeyond(
+                                     e, 1.0f / w, fmax(fabs(e.x), fmax(fabs(e.y), fabs(e.z))),
+                                     ch_lo[k] * scale, ch_hi[k] * scale, band_start, band_end,
+                                     inv_dt, band_n));
+        }
+        if (run && run_end >= j + 4u) {
+          /* The first use of a fast hit needs nothing of OctoResolveSource but the stamp. */
+          for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+            if (ch_fresh[k]) OctoMarkSlotCounted(slot_used, ch_hit[k].slot, frame, counters);
+          }
+          const float level_down = ldexp(1.0f, -level);
+          uint jj = j;
+          uint taken = 1u;
+          bool ended = false;
+#if OCTO_RUN_LANES >= 8
+          for (; jj + 8u <= run_end && taken > 0u && !ended; jj += taken) {
+            const float8 lanes = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
+            const float8 arc8 = (band_start + ((float)jj + lanes) * dt) + 0.5f * dt;
+            ended = OctoTransformStep8(f, g, channels, lut, ch_brick, arc8, entry, u, level_down,
+                                       valid_hi, ch_lo, ch_hi, ch_origin, band_ratio, &acc,
+                                       extreme, &samples, &taken);
+          }
+          taken = 1u;
+#endif
+          for (; jj + 4u <= run_end && taken > 0u && !ended; jj += taken) {
+            const float4 arc4 =
+                (band_start + ((float)jj + (float4)(0.0f, 1.0f, 2.0f, 3.0f)) * dt) + 0.5f * dt;
+            ended = OctoTransformStep4(f, g, channels, lut, ch_brick, arc4, entry, u, level_down,
+                                       valid_hi, ch_lo, ch_hi, ch_origin, band_ratio, &acc,
+                                       extreme, &samples, &taken);
+          }
+          if (ended) break;
+          if (jj > j) {
+            i = band_base + jj;
+            continue;
+          }
+        }
+      }
+
 #if OCTO_REFINE
       /* Refinement samples only the wanted level: a missing brick pauses the ray here. */
       bool missing = false;
@@ -847,9 +991,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           if (k > 0) break;
           hit = shared_hit;
         } else {
-          float3 q;
-          if (!OctoChannelPosition(&channels[k], p, f, &q)) continue;
-          hit = OctoFindNode(nodes, g, OctoClampToLevel(q, level, g), level);
+          if (!ch_in[k]) continue;
+          hit = ch_hit[k];
         }
         if (OctoWantedMissing(hit)) {
           OctoRequestNode(request_flags, request_list, request_capacity, hit.wanted, frame);
@@ -889,13 +1032,10 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         if (OCTO_ALL_IDENTITY) {
           src = shared_src;
         } else {
-          float3 q;
-          if (!OctoChannelPosition(&channels[k], p, f, &q)) continue;
-          q = OctoClampToLevel(q, level, g);
-          const OctoNodeHit hit = OctoFindNode(nodes, g, q, level);
-          src = OctoResolveSource(OctoHitBrick(OCTO_BRICK_BUFFER_ARGS, g, hit), g, hit, q, level,
-                                  true, request_flags, request_list, request_capacity, slot_used,
-                                  frame, counters);
+          if (!ch_in[k]) continue;
+          src = OctoResolveSource(ch_brick[k], g, ch_hit[k], ch_q[k], level, ch_fresh[k],
+                                  request_flags, request_list, request_capacity, slot_used, frame,
+                                  counters);
         }
         const float v = OctoSourceRead(nodes, g, src, OCTO_CHANNEL_OF(k));
         ++samples;
