@@ -10,9 +10,11 @@ difference (8-bit RGB) against a reference PNG (Octoscope's CPU reference of the
 Camera and transfer function match Octoscope's definitions (docs/benchmarks.md, "Side by side with
 VTK"): the look-at camera of the camera JSON (position, target, up, vertical fov); voxel i's
 centre at (i + 0.5) * spacing (VTK: origin 0.5 * spacing); trilinear interpolation; a sample
-distance of `step` voxels; MIP: grey ramp over the window, opacity 1; DVR: colour and opacity
-ramps over the window (opacity up to opacity_scale per voxel length, VTK's scalar opacity unit
-distance 1 voxel = Octoscope's opacity correction reference), front to back over black.
+distance of `step` voxels (Octoscope steps in voxel space: with anisotropic voxels VTK's world
+distance is that of `step` voxels along the view's forward direction); MIP: grey ramp over the
+window, opacity 1; DVR: colour and opacity ramps over the window (opacity up to opacity_scale per
+smallest spacing, VTK's scalar opacity unit distance = Octoscope's opacity correction reference),
+front to back over black.
 """
 import argparse
 import json
@@ -56,6 +58,7 @@ def main():
     p.add_argument("--window", type=float, nargs=2, required=True, help="stored lo hi")
     p.add_argument("--opacity", type=float, default=1.0, help="DVR opacity_scale")
     p.add_argument("--step", type=float, default=1.0)
+    p.add_argument("--spacing", type=float, nargs=3, default=[1.0, 1.0, 1.0], help="µm per voxel")
     p.add_argument("--size", type=int, default=1024)
     p.add_argument("--mapper", choices=["fixed", "gpu"], required=True)
     p.add_argument("--frames", type=int, default=3)
@@ -87,8 +90,9 @@ def main():
     importer.SetNumberOfScalarComponents(1)
     importer.SetWholeExtent(0, nx - 1, 0, ny - 1, 0, nz - 1)
     importer.SetDataExtentToWholeExtent()
-    importer.SetDataSpacing(1, 1, 1)
-    importer.SetDataOrigin(0.5, 0.5, 0.5)  # Voxel i's centre at i + 0.5, as Octoscope's.
+    spacing = np.array(args.spacing, dtype=np.float64)
+    importer.SetDataSpacing(*spacing)
+    importer.SetDataOrigin(*(0.5 * spacing))  # Voxel i's centre at (i + 0.5) * spacing.
     importer.Update()
     loaded = time.perf_counter()
 
@@ -110,7 +114,7 @@ def main():
     prop = vtk.vtkVolumeProperty()
     prop.SetColor(color)
     prop.SetScalarOpacity(opacity)
-    prop.SetScalarOpacityUnitDistance(1.0)
+    prop.SetScalarOpacityUnitDistance(float(spacing.min()))
     prop.SetInterpolationTypeToLinear()
     prop.ShadeOff()
 
@@ -122,7 +126,11 @@ def main():
     else:
         mapper = vtk.vtkGPUVolumeRayCastMapper()
     mapper.SetAutoAdjustSampleDistances(0)
-    mapper.SetSampleDistance(args.step)
+    # One voxel of arc in voxel space along the view's forward direction, in µm.
+    forward = np.array(cam["target"], dtype=np.float64) - np.array(cam["position"], dtype=np.float64)
+    forward /= np.linalg.norm(forward)
+    voxel_step_um = 1.0 / np.linalg.norm(forward / spacing)
+    mapper.SetSampleDistance(args.step * voxel_step_um)
     mapper.SetInputConnection(importer.GetOutputPort())
     if args.mode == "mip":
         mapper.SetBlendModeToMaximumIntensity()

@@ -11,7 +11,9 @@
 #        composited over black.
 # Requires bench/install_vtk.sh (python3-vtk9, xvfb); not needed by the test suite.
 #
-# Usage: bash bench/vtk_compare.sh [DEMO_SIZE=512] [IMAGE_SIZE=1024] [FRAMES=3]
+# Usage: bash bench/vtk_compare.sh [DEMO_SIZE=512] [IMAGE_SIZE=1024] [FRAMES=3] [SPACING=1,1,1]
+# SPACING: µm per voxel along x, y, z for both renderers (the demo file says 0.4,0.4,2; the serve
+# demo shows 0.5,0.5,1); each spacing wants its own OCTOSCOPE_BENCH_DIR (camera and references).
 # Leaves everything in $OCTOSCOPE_BENCH_DIR (default out/bench-vtk): the inputs, every image,
 # results.jsonl (one JSON line per measurement) and vtk_compare.md (the table, also printed).
 set -euo pipefail
@@ -21,6 +23,7 @@ bin="$build/octoscope"
 demo="${1:-512}"
 size="${2:-1024}"
 frames="${3:-3}"
+spacing="${4:-1,1,1}"
 out="${OCTOSCOPE_BENCH_DIR:-$root/out/bench-vtk}"
 py=/usr/bin/python3  # Debian's, where python3-vtk9 lives.
 mkdir -p "$out"
@@ -40,23 +43,24 @@ scan="$out/demo${demo}.ome.tif"
   --compression none --name "demo${demo}" >/dev/null
 [ -f "$out/cache/MANIFEST" ] || "$bin" build "$scan" --cache "$out/cache" >/dev/null 2>&1
 [ -f "$out/volume.raw" ] || "$py" "$root/bench/vtk_prepare.py" --tiff "$scan" --out-dir "$out" \
-  > "$out/inputs.json"
+  --spacing ${spacing//,/ } > "$out/inputs.json"
 read -r lo hi < <("$py" -c "import json; w = json.load(open('$out/inputs.json'))['window']; print(*w)")
 
 {
   echo "date: $(date -Iseconds)"
   echo "cpu: $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2- | sed 's/^ //'), $(nproc) cores"
   echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
-  echo "volume: ${demo}^3 uint16, image ${size}x${size}, window $lo..$hi"
+  echo "volume: ${demo}^3 uint16, voxels $spacing µm, image ${size}x${size}, window $lo..$hi"
 } > "$out/machine.txt"
 : > "$out/results.jsonl"
 compare() { "$py" "$root/bench/vtk_prepare.py" --compare "$1" "$2"; }
 
 for mode in mip dvr; do
-  # The voxel grid at 1 µm (the demo file says 0.4 x 0.4 x 2 µm): VTK gets the same unit grid, so
-  # steps (voxels here, world units there) and opacity reference lengths agree.
+  # The voxel grid at SPACING (default 1 µm; the demo file says 0.4 x 0.4 x 2 µm): VTK gets the
+  # same grid, its sample distance the length of Octoscope's step along the view and its opacity
+  # unit distance Octoscope's opacity reference (the smallest spacing).
   common=(--view "$out/camera.json" --params "$out/params_$mode.json" --size "${size}x${size}"
-    --spacing 1,1,1)
+    --spacing "$spacing")
   # 2. The reference (not timed; one thread, double precision).
   ref="$out/ref_$mode.png"
   [ -f "$ref" ] || "$bin" render "$scan" --cache "$out/cache" --cpu-reference "${common[@]}" \
@@ -114,6 +118,7 @@ for mode in mip dvr; do
       "$root/bench/vtk_compare.py" --raw "$out/volume.raw" --dims "$demo" "$demo" "$demo" \
       --camera "$out/camera.json" --mode "$mode" --window "$lo" "$hi" --opacity "$opacity" \
       --size "$size" --mapper "$mapper" --frames "$frames" --reference "$ref" \
+      --spacing ${spacing//,/ } \
       --out "$out/vtk_${mapper}_$mode.png" | tail -1)
     echo "{\"renderer\":\"vtk\",\"result\":$line}" >> "$out/results.jsonl"
   done

@@ -3,7 +3,7 @@
 
 Writes into OUT_DIR: volume.raw (little-endian uint16, x fastest, y = TIFF row, z = page: the
 voxel order Octoscope reads), camera.json (Octoscope's standard iso perspective view of the
-volume's box as a look-at camera, camera.cpp's formula: eye at the box centre minus
+volume's box (--spacing: µm per voxel) as a look-at camera, camera.cpp's formula: eye at the box centre minus
 (1,1,1)/sqrt(3) * radius / sin(fov/2)), params_mip.json and params_dvr.json (one grey channel,
 window from the 60th to the 99.9th percentile of the voxels, DVR opacity_scale 0.3, step 1), and
 prints the dimensions and window as JSON. Also `--compare A.png B.png`: PSNR / max difference of
@@ -26,6 +26,7 @@ def main():
     p.add_argument("--tiff")
     p.add_argument("--out-dir")
     p.add_argument("--fov", type=float, default=30.0)
+    p.add_argument("--spacing", type=float, nargs=3, default=[1.0, 1.0, 1.0], help="µm per voxel")
     p.add_argument("--compare", nargs=2)
     args = p.parse_args()
     if args.compare:
@@ -50,7 +51,7 @@ def main():
 
     # Camera::Standard(kIso, perspective): forward (1,1,1)/sqrt(3), up (0,-1,0), the bounding
     # sphere fitted into the fov.
-    extent = np.array([nx, ny, nz], dtype=np.float64)
+    extent = np.array([nx, ny, nz], dtype=np.float64) * np.array(args.spacing)
     centre = extent / 2
     radius = float(np.linalg.norm(extent)) / 2
     distance = radius / math.sin(math.radians(args.fov) / 2)
