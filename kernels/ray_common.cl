@@ -181,10 +181,12 @@ float OctoCorrectOpacity(float a, OctoRatio r) {
   return OctoCorrectOpacity4((float4)(clamp(a, 0.0f, 1.0f)), r).s0;
 }
 
-/* How far a channel's transformed position may leave the volume box by rounding alone, per axis:
- * a few ulps of the largest terms of transform * p (p in the box). Anything further gives no
- * sample; a wider tolerance would take samples the reference (1e-9 of the box in double) leaves
- * out. */
+/* How far a channel's transformed position may leave the volume box by the rounding of
+ * transform * p, per axis: 8 ulps of the sum of its terms' bounds over the box (p in the box).
+ * Anything further gives no sample; a wider tolerance would take samples the reference (1e-9 of
+ * the box in double) leaves out. Rounding already in p (its entry point is computed from the
+ * camera) is not covered: there a decision can differ from the reference's by about an ulp of
+ * the camera's distance, on both paths alike. */
 float3 OctoChannelTolerance(__global const float* m, float3 box) {
   const float3 span = (float3)(fabs(m[0]) * box.x + fabs(m[1]) * box.y + fabs(m[2]) * box.z,
                                fabs(m[4]) * box.x + fabs(m[5]) * box.y + fabs(m[6]) * box.z,
