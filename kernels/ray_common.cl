@@ -157,13 +157,15 @@ OctoRatio OctoOpacityRatio(float ratio) {
   return r;
 }
 
-/* CorrectOpacity of render_params.h for four alphas in [0, 1]: 1 - (1 - a)^ratio, precise for
- * tiny alphas; 0 and 1 stay exact. A ratio of 2^s is s squarings of the transparency, written
- * b <- 1 - (1 - b)^2 = b (2 - b) so tiny alphas keep their precision: a few multiplies. Any other
- * ratio (samples not 2^s reference spacings apart: anisotropic voxels seen obliquely, a step such
- * as 1.5) takes log1p and expm1 as one vector call each, not four scalar ones (the DVR inner
- * loop's dearest part). The one implementation: the scalar path (OctoCorrectOpacity) takes lane 0
- * of the same call, as OctoGamma4. */
+/* CorrectOpacity of render_params.h for four alphas in [0, 1]: 1 - (1 - a)^ratio; 0 and 1 stay
+ * exact. A ratio of 2^s is s squarings of the transparency, written b <- 1 - (1 - b)^2 = b (2 - b)
+ * so tiny alphas keep their precision: a few multiplies. Any other ratio (samples not 2^s
+ * reference spacings apart: anisotropic voxels seen obliquely, a step such as 1.5) takes
+ * 1 - exp2(ratio * log2(1 - a)) as vector calls: cheaper than log1p/expm1 (the DVR inner loop's
+ * dearest part; exp2/log2 are hardware on GPUs) and off by about an ulp of 1 per sample, as the
+ * compositing's own 1 - a already is (no image moved against the reference, even at the finest
+ * step: docs/benchmarks.md). The one implementation: the scalar path (OctoCorrectOpacity) takes
+ * lane 0 of the same call, as OctoGamma4. */
 float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   if (r.squarings >= 0) {
     for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
@@ -171,7 +173,7 @@ float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   }
   /* Transparent (and opaque) samples need no correction: without skipping most samples are. */
   if (!any((a > 0.0f) & (a < 1.0f))) return a;
-  const float4 corrected = -expm1(r.ratio * log1p(-a));
+  const float4 corrected = 1.0f - exp2(r.ratio * log2(1.0f - a));
   return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
 }
 
