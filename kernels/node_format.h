@@ -14,9 +14,10 @@
  * Brick buffer: uint16 samples; the brick in slot s starts at sample s * OctoBrickSamples(g) and
  * holds the node's interior plus a one-voxel apron, (bs + 2) voxels per axis, channels
  * interleaved, x fastest: ((z * sy + y) * sx + x) * C + c (brick_geometry.h).
- * Cell ranges (server/render/cell_ranges.h): slot s's words start at s * OctoCellWords(g); cell
- * (cx, cy, cz) of OCTO_CELL_SIZE^3 interior voxels, x fastest, holds word (cell * C + c) per
- * channel: min bits 0..15, max bits 16..31 over the stored voxels its trilinear samples read.
+ * Cell ranges (server/render/cell_ranges.h): slot s's words start at s * OctoCellWords(g):
+ * the fine cells (OCTO_FINE_CELL_SIZE^3 interior voxels), then the coarse ones
+ * (OCTO_COARSE_CELL_SIZE^3); in each, cell (cx, cy, cz), x fastest, holds word (cell * C + c)
+ * per channel: min bits 0..15, max bits 16..31 over the stored voxels its trilinear samples read.
  */
 #ifndef OCTOSCOPE_KERNELS_NODE_FORMAT_H_
 #define OCTOSCOPE_KERNELS_NODE_FORMAT_H_
@@ -35,8 +36,16 @@
 #define OCTO_OCTANT_Y 2
 #define OCTO_OCTANT_Z 4
 #define OCTO_CHILDREN_PER_GROUP 8
-/* Interior voxels per axis of a cell of the cell ranges. */
-#define OCTO_CELL_SIZE 8
+/* Interior voxels per axis of the fine and the coarse cells of the cell ranges. */
+#define OCTO_FINE_CELL_SIZE 8
+#define OCTO_COARSE_CELL_SIZE 16
+/* The cells a program walks: fine unless it defines OCTO_CELL_SIZE as OCTO_COARSE_CELL_SIZE
+ * first (raycast.cl for DVR, whose inert test does not depend on the ray, so bigger cells skip
+ * as much with fewer tests; MIP's and MinIP's follow the running extremum, which finer cells
+ * track more closely). */
+#ifndef OCTO_CELL_SIZE
+#define OCTO_CELL_SIZE OCTO_FINE_CELL_SIZE
+#endif
 
 /* The tree's geometry as a kernel argument (passed by value; only 32-bit ints, so the layout is
  * the same in C++ and OpenCL C: 32 bytes, no padding). Mirrors octree::BrickGeometry. */
@@ -105,15 +114,28 @@ ulong OctoBrickSamples(OctoTreeGeometry g) {
   return (ulong)(bs.x + 2) * (ulong)(bs.y + 2) * (ulong)(bs.z + 2) * (ulong)OctoStoredChannels(g);
 }
 
-/* Cells per axis of a brick: ceil(bs / OCTO_CELL_SIZE). */
-int3 OctoCellsPerAxis(OctoTreeGeometry g) {
-  return (OctoBrickSize(g) + OCTO_CELL_SIZE - 1) / OCTO_CELL_SIZE;
+/* Cells of `size` per axis of a brick: ceil(bs / size). */
+int3 OctoCellsPerAxisOf(OctoTreeGeometry g, int size) {
+  return (OctoBrickSize(g) + size - 1) / size;
 }
 
-/* Cell range words of one slot: cells times channels. */
-ulong OctoCellWords(OctoTreeGeometry g) {
-  const int3 n = OctoCellsPerAxis(g);
+/* Cell range words of one slot at one cell size: cells times channels. */
+ulong OctoCellWordsOf(OctoTreeGeometry g, int size) {
+  const int3 n = OctoCellsPerAxisOf(g, size);
   return (ulong)n.x * (ulong)n.y * (ulong)n.z * (ulong)OctoStoredChannels(g);
+}
+
+/* The program's cells (OCTO_CELL_SIZE) per axis of a brick. */
+int3 OctoCellsPerAxis(OctoTreeGeometry g) { return OctoCellsPerAxisOf(g, OCTO_CELL_SIZE); }
+
+/* Cell range words of one slot (its stride): fine and coarse cells. */
+ulong OctoCellWords(OctoTreeGeometry g) {
+  return OctoCellWordsOf(g, OCTO_FINE_CELL_SIZE) + OctoCellWordsOf(g, OCTO_COARSE_CELL_SIZE);
+}
+
+/* Where the program's cells start within a slot's words. */
+ulong OctoCellOffset(OctoTreeGeometry g) {
+  return OCTO_CELL_SIZE == OCTO_FINE_CELL_SIZE ? 0 : OctoCellWordsOf(g, OCTO_FINE_CELL_SIZE);
 }
 
 #endif /* __OPENCL_VERSION__ */

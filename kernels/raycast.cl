@@ -25,11 +25,20 @@
  * (docs/rendering.md; without transforms) jumps over inert nodes (node value ranges), inert cells
  * of resident bricks (cell ranges) and brickless leaves, without changing the image.
  */
+#include "render_format.h"
+
+/* DVR walks the coarse cells of the cell ranges, MIP and MinIP the fine ones (node_format.h). */
+#ifndef OCTO_MODE
+#define OCTO_MODE OCTO_MODE_DVR
+#endif
+#if OCTO_MODE == OCTO_MODE_DVR
+#define OCTO_CELL_SIZE OCTO_COARSE_CELL_SIZE
+#endif
+
 #include "feedback.h"
 #include "node_format.h"
 #include "octree_sampling.cl"
 #include "ray_common.cl"
-#include "render_format.h"
 
 #ifndef OCTO_REFINE
 #define OCTO_REFINE 0
@@ -715,7 +724,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
            * axis (infinite along an axis the ray does not move on). */
           bool dda = f.skip_empty;
           const int3 cells = OctoCellsPerAxis(g);
-          __global const uint* slot_cells = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g);
+          __global const uint* slot_cells =
+              cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) + OctoCellOffset(g);
           const int3 cell_step = convert_int3(sign(u));
           const float3 face_side = select((float3)(0.0f), (float3)(1.0f), isgreater(u, 0.0f));
           int3 cell = (int3)(0);
@@ -878,6 +888,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           /* The brick counts as used even when its first cell is skipped (eviction order). */
           if (fresh) OctoMarkSlotCounted(slot_used, shared_hit.slot, frame, counters);
           __global const uint* words = cell_ranges + (ulong)shared_hit.slot * OctoCellWords(g) +
+                                       OctoCellOffset(g) +
                                        (ulong)cell_id * (ulong)OctoStoredChannels(g);
           if (OctoCellInert(words, f, channels, extreme)) {
             const float scale = ldexp(1.0f, level);

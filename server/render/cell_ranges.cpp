@@ -13,22 +13,57 @@ int WindowLast(int c, int64_t bs) {
   return static_cast<int>(std::min<int64_t>(int64_t{kCellSize} * c + kCellSize + 1, bs + 1));
 }
 
-int64_t CellsOn(int64_t bs) { return (bs + kCellSize - 1) / kCellSize; }
+int64_t CellsOn(int64_t bs, int cell_size) { return (bs + cell_size - 1) / cell_size; }
+
+// The coarse cells' words from the fine ones: each coarse cell's range is the union of its (up
+// to) 2 x 2 x 2 fine cells' ranges, whose windows make up its own.
+void MergeCoarse(const octree::BrickGeometry& geometry, std::span<uint32_t> out) {
+  const octree::Vec3 fine = CellsPerAxis(geometry, kCellSize);
+  const octree::Vec3 coarse = CellsPerAxis(geometry, kCoarseCellSize);
+  const int64_t channels = geometry.channels();
+  const uint32_t* fine_words = out.data();
+  uint32_t* word = out.data() + CoarseCellOffset(geometry);
+  for (int64_t cz = 0; cz < coarse[2]; ++cz) {
+    for (int64_t cy = 0; cy < coarse[1]; ++cy) {
+      for (int64_t cx = 0; cx < coarse[0]; ++cx) {
+        for (int64_t c = 0; c < channels; ++c) {
+          uint32_t lo = 0xffff;
+          uint32_t hi = 0;
+          for (int64_t z = 2 * cz; z < std::min(2 * cz + 2, fine[2]); ++z) {
+            for (int64_t y = 2 * cy; y < std::min(2 * cy + 2, fine[1]); ++y) {
+              for (int64_t x = 2 * cx; x < std::min(2 * cx + 2, fine[0]); ++x) {
+                const uint32_t w = fine_words[((z * fine[1] + y) * fine[0] + x) * channels + c];
+                lo = std::min(lo, w & 0xffffu);
+                hi = std::max(hi, w >> 16);
+              }
+            }
+          }
+          *word++ = lo | (hi << 16);
+        }
+      }
+    }
+  }
+}
 
 }  // namespace
 
-octree::Vec3 CellsPerAxis(const octree::BrickGeometry& geometry) {
+octree::Vec3 CellsPerAxis(const octree::BrickGeometry& geometry, int cell_size) {
   const octree::Vec3& bs = geometry.brick_size();
-  return {CellsOn(bs[0]), CellsOn(bs[1]), CellsOn(bs[2])};
+  return {CellsOn(bs[0], cell_size), CellsOn(bs[1], cell_size), CellsOn(bs[2], cell_size)};
 }
 
-uint64_t CellsPerBrick(const octree::BrickGeometry& geometry) {
-  const octree::Vec3 n = CellsPerAxis(geometry);
+uint64_t CellsPerBrick(const octree::BrickGeometry& geometry, int cell_size) {
+  const octree::Vec3 n = CellsPerAxis(geometry, cell_size);
   return static_cast<uint64_t>(n[0] * n[1] * n[2]);
 }
 
+uint64_t CoarseCellOffset(const octree::BrickGeometry& geometry) {
+  return CellsPerBrick(geometry, kCellSize) * static_cast<uint64_t>(geometry.channels());
+}
+
 uint64_t CellRangeWords(const octree::BrickGeometry& geometry) {
-  return CellsPerBrick(geometry) * static_cast<uint64_t>(geometry.channels());
+  return (CellsPerBrick(geometry, kCellSize) + CellsPerBrick(geometry, kCoarseCellSize)) *
+         static_cast<uint64_t>(geometry.channels());
 }
 
 // Built for AVX2 too (picked at load time where the CPU has it): the passes are min/max over
@@ -97,6 +132,7 @@ __attribute__((target_clones("avx2", "default"))) void ComputeCellRanges(
       }
     }
   }
+  MergeCoarse(geometry, out);
 }
 
 void ComputeCellRanges(const octree::BrickGeometry& geometry, std::span<const uint16_t> brick,

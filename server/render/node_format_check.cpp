@@ -34,7 +34,8 @@ constexpr bool NodeWordsAgree() {
   return true;
 }
 static_assert(NodeWordsAgree());
-static_assert(OCTO_CELL_SIZE == kCellSize);
+static_assert(OCTO_FINE_CELL_SIZE == kCellSize && OCTO_COARSE_CELL_SIZE == kCoarseCellSize);
+static_assert(OCTO_CELL_SIZE == OCTO_FINE_CELL_SIZE);  // Unless a program asks for coarse cells.
 
 // The geometry argument is passed by value to kernels: no padding, 32-bit fields only.
 static_assert(sizeof(int) == 4);

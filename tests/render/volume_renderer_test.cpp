@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "cl_test_env.h"
+#include "render/cell_ranges.h"
 #include "render/device_octree.h"
 #include "render/reference_renderer.h"
 #include "render/render_frame.h"
@@ -772,16 +773,17 @@ TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
   }
 }
 
-// 64^3 voxels, two channels, 32^3 bricks that each hold a bright noisy blob of `radius` voxels
-// (channel 0's at the brick's centre, channel 1's nearer its low corner) in dim noise, inside a
-// black shell: no node is inert for DVR, but most of each brick's 8^3 cells are dim.
+// 64^3 voxels, two channels, 32^3 bricks that each hold a bright noisy blob of `radius` (<= 7)
+// voxels (channel 0's in the brick's high 16^3 octant, channel 1's in its low one, each in one
+// DVR cell: cell_ranges.h) in dim noise, inside a black shell: no node is inert for DVR, but most
+// of each brick's cells are dim, fine (8^3) and coarse (16^3) alike.
 SceneSpec BlobPerBrickSpec(int64_t radius) {
   SceneSpec spec;
   spec.size = {64, 64, 64};
   spec.brick = {32, 32, 32};
   spec.channels = 2;
   spec.value = [radius](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
-    const int64_t centre = c == 0 ? 16 : 9;
+    const int64_t centre = c == 0 ? 23 : 8;
     const int64_t dx = x % 32 - centre;
     const int64_t dy = y % 32 - centre;
     const int64_t dz = z % 32 - centre;
@@ -1057,23 +1059,25 @@ TEST(VolumeRendererTest, RaysEnteringAnInertVolumeTakeNoSample) {
 // like a 3-D checkerboard between bright spots (even cells) and dim noise (odd cells; their
 // ranges, apron included, reach only dim voxels), so every face of an inert cell leads into a
 // live one. A walk that left a cell through the wrong face, or jumped past its exit, would skip
-// bright samples. Oblique, nearly axial and perspective rays; bit-identical to skipping off.
+// bright samples. The checkerboard has the mode's cells: DVR's coarse (16^3), MIP's fine (8^3).
+// Oblique, nearly axial and perspective rays; bit-identical to skipping off.
 TEST(VolumeRendererTest, TheCellWalkSkipsOnlyInertCells) {
   OCTO_REQUIRE_OPENCL_DEVICE();
-  SceneSpec spec;
-  spec.size = {64, 64, 64};
-  spec.brick = {32, 32, 32};
-  spec.channels = 1;
-  spec.value = [](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
-    const bool even = (x / 8 + y / 8 + z / 8) % 2 == 0;
-    const auto inner = [](int64_t v) { return v % 8 >= 1 && v % 8 <= 6; };
-    if (even && inner(x) && inner(y) && inner(z)) {
-      return static_cast<uint16_t>(30000 + Hash(x, y, z, c) % 30000);
-    }
-    return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+  const auto checkerboard = [](int64_t cell) {
+    SceneSpec spec;
+    spec.size = {64, 64, 64};
+    spec.brick = {32, 32, 32};
+    spec.channels = 1;
+    spec.value = [cell](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+      const bool even = (x / cell + y / cell + z / cell) % 2 == 0;
+      const auto inner = [cell](int64_t v) { return v % cell >= 1 && v % cell <= cell - 2; };
+      if (even && inner(x) && inner(y) && inner(z)) {
+        return static_cast<uint16_t>(30000 + Hash(x, y, z, c) % 30000);
+      }
+      return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+    };
+    return spec;
   };
-  auto rig = MakeRig(spec);
-  ASSERT_NE(rig, nullptr);
   const Vec3 centre{32, 32, 32};
   const std::vector<std::pair<Projection, Vec3>> views = {
       {Projection::kOrthographic, {1, 0.7, 2}},
@@ -1082,6 +1086,8 @@ TEST(VolumeRendererTest, TheCellWalkSkipsOnlyInertCells) {
       {Projection::kPerspective, {0.9, -0.6, 0.5}},
       {Projection::kPerspective, {-0.2, -0.3, -1}}};
   for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+    auto rig = MakeRig(checkerboard(mode == RenderMode::kDvr ? kCoarseCellSize : kCellSize));
+    ASSERT_NE(rig, nullptr);
     RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
     params.channels[0].window = 20000;
     params.channels[0].level = 12000;         // Transparent below 2000: the dim noise.
