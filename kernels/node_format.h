@@ -46,6 +46,9 @@
 #ifndef OCTO_CELL_SIZE
 #define OCTO_CELL_SIZE OCTO_FINE_CELL_SIZE
 #endif
+#if OCTO_CELL_SIZE != OCTO_FINE_CELL_SIZE && OCTO_CELL_SIZE != OCTO_COARSE_CELL_SIZE
+#error "OCTO_CELL_SIZE must be OCTO_FINE_CELL_SIZE or OCTO_COARSE_CELL_SIZE: no other ranges exist"
+#endif
 
 /* The tree's geometry as a kernel argument (passed by value; only 32-bit ints, so the layout is
  * the same in C++ and OpenCL C: 32 bytes, no padding). Mirrors octree::BrickGeometry. */

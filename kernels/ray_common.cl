@@ -162,10 +162,11 @@ OctoRatio OctoOpacityRatio(float ratio) {
  * so tiny alphas keep their precision: a few multiplies. Any other ratio (samples not 2^s
  * reference spacings apart: anisotropic voxels seen obliquely, a step such as 1.5) takes
  * 1 - exp2(ratio * log2(1 - a)) as vector calls: cheaper than log1p/expm1 (the DVR inner loop's
- * dearest part; exp2/log2 are hardware on GPUs) and off by about an ulp of 1 per sample, as the
- * compositing's own 1 - a already is (no image moved against the reference, even at the finest
- * step: docs/benchmarks.md). The one implementation: the scalar path (OctoCorrectOpacity) takes
- * lane 0 of the same call, as OctoGamma4. */
+ * dearest part; exp2/log2 are hardware on GPUs) and off by a few ulps of 1 times max(ratio, 1)
+ * (the rounding of 1 - a, carried through the power): per reference spacing, what compositing's
+ * own 1 - a loses (OpacityCorrectionMatchesTheDoubleFormula; no image moved against the
+ * reference, even at the finest step: docs/benchmarks.md). The one implementation: the scalar
+ * path (OctoCorrectOpacity) takes lane 0 of the same call, as OctoGamma4. */
 float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   if (r.squarings >= 0) {
     for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
@@ -173,7 +174,8 @@ float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   }
   /* Transparent (and opaque) samples need no correction: without skipping most samples are. */
   if (!any((a > 0.0f) & (a < 1.0f))) return a;
-  const float4 corrected = 1.0f - exp2(r.ratio * log2(1.0f - a));
+  /* fmax: exp2 may round a little above 1 (3 ulps allowed), never a negative alpha. */
+  const float4 corrected = fmax(1.0f - exp2(r.ratio * log2(1.0f - a)), 0.0f);
   return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
 }
 

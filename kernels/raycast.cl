@@ -27,7 +27,8 @@
  */
 #include "render_format.h"
 
-/* DVR walks the coarse cells of the cell ranges, MIP and MinIP the fine ones (node_format.h). */
+/* DVR walks the coarse cells of the cell ranges, MIP and MinIP the fine ones (node_format.h).
+ * Before every other include: node_format.h defaults to the fine cells. */
 #ifndef OCTO_MODE
 #define OCTO_MODE OCTO_MODE_DVR
 #endif

@@ -21,9 +21,10 @@
 //    each when one allocation would exceed CL_DEVICE_MAX_MEM_ALLOC_SIZE (or the option's cap). Slot
 //    s lives in allocation s / slots_per_allocation at brick offset s % slots_per_allocation.
 //  * CELL RANGES (render/cell_ranges.h): per slot, the per-channel value ranges of the brick's
-//    8^3-voxel cells (cell_range_words() uint32 words per slot), computed by Upload from the very
-//    bytes it sends and written (one write of the changed slots' span) before the node entries
-//    that make those bricks resident; the kernels skip the cells that cannot change a ray.
+//    8^3-voxel cells, then of its 16^3-voxel cells (cell_range_words() uint32 words per slot),
+//    computed by Upload from the very bytes it sends and written (one write of the changed
+//    slots' span) before the node entries that make those bricks resident; the kernels skip the
+//    cells that cannot change a ray.
 //  * FEEDBACK, written by the kernels (kernels/raycast.cl):
 //      request_flags: one uint per node id; a kernel that wants node n does
 //        `if (atomic_xchg(&request_flags[n], frame) != frame)` append n to request_list;

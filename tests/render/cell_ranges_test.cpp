@@ -33,9 +33,13 @@ Fixture Make(octree::Vec3 bs, int channels, uint32_t seed) {
   Fixture f{Geometry(bs, channels), {}, {}};
   std::mt19937 rng(seed);
   f.brick.resize(f.geometry.brick_samples());
-  // Mostly low values with rare spikes, so the ranges differ between cells.
+  // Mostly middling values with rare spikes up and down, so both ends of the ranges differ
+  // between cells.
   for (uint16_t& v : f.brick) {
-    v = static_cast<uint16_t>(rng() % 100 == 0 ? rng() % 65536 : 1000 + rng() % 50);
+    const uint32_t pick = rng() % 100;
+    v = static_cast<uint16_t>(pick == 0   ? 1050 + rng() % 64486
+                              : pick == 1 ? rng() % 1000
+                                          : 1000 + rng() % 50);
   }
   f.words.assign(CellRangeWords(f.geometry), 0xdeadbeef);
   ComputeCellRanges(f.geometry, f.brick, f.words);

@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -23,8 +24,10 @@
 #include "cl_test_env.h"
 #include "render/cell_ranges.h"
 #include "render/device_octree.h"
+#include "render/program_cache.h"
 #include "render/reference_renderer.h"
 #include "render/render_frame.h"
+#include "render/render_params.h"
 #include "render_fixture.h"
 #include "volume_renderer_rig.h"
 
@@ -827,11 +830,68 @@ TEST(VolumeRendererTest, CellRangeSkippingInsideNonEmptyBricksIsLossless) {
   }
 }
 
+// The device's opacity correction (OctoCorrectOpacity: squarings for ratios 2^s, else
+// 1 - exp2(r log2(1 - a))) against the double CorrectOpacity of render_params.h, alpha by alpha:
+// 0 and 1 exact, never outside [0, 1], and off by at most a few ulps of 1 times max(r, 1) (the
+// rounding of 1 - a, carried through the power: per reference spacing what compositing's own
+// 1 - a loses). A relaxed-precision exp2 / log2 or a wrong formula is far outside.
+TEST(VolumeRendererTest, OpacityCorrectionMatchesTheDoubleFormula) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  const testing::ClTestEnv& env = testing::SharedClTestEnv();
+  const ComputeContext& cc = *env.context;
+  const char* source =
+      "#include \"ray_common.cl\"\n"
+      "__kernel void Correct(__global const float* a, __global const float* r, uint n,\n"
+      "                      __global float* out) {\n"
+      "  const size_t i = get_global_id(0);\n"
+      "  if (i < n) out[i] = OctoCorrectOpacity(a[i], OctoOpacityRatio(r[i]));\n"
+      "}\n";
+  auto program = BuildProgram(cc, "opacity_test.cl", source, kTestBuildOptions);
+  ASSERT_TRUE(program.ok()) << program.status().ToString();
+  cl_int err = CL_SUCCESS;
+  ClKernel kernel(clCreateKernel(program->get(), "Correct", &err));
+  ASSERT_EQ(err, CL_SUCCESS);
+  const std::vector<float> alphas = {0.0f, 1e-7f, 1e-5f, 1e-3f,  0.01f,        0.1f,
+                                     0.3f, 0.5f,  0.9f,  0.999f, 1.0f - 1e-6f, 1.0f};
+  const std::vector<float> ratios = {1.0f / 64, 0.3f, 0.577f, 0.7f,  1.0f,   1.5f,
+                                     2.0f,      3.0f, 4.0f,   37.3f, 1000.0f};
+  std::vector<float> a;
+  std::vector<float> r;
+  for (const float ratio : ratios) {
+    for (const float alpha : alphas) {
+      a.push_back(alpha);
+      r.push_back(ratio);
+    }
+  }
+  const size_t n = a.size();
+  auto a_buffer = cc.CreateBuffer(CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, n * 4, a.data());
+  auto r_buffer = cc.CreateBuffer(CL_MEM_READ_ONLY | CL_MEM_COPY_HOST_PTR, n * 4, r.data());
+  auto out_buffer = cc.CreateBuffer(CL_MEM_WRITE_ONLY, n * 4);
+  ASSERT_TRUE(a_buffer.ok() && r_buffer.ok() && out_buffer.ok());
+  ASSERT_TRUE(
+      SetKernelArgs(kernel.get(), *a_buffer, *r_buffer, static_cast<cl_uint>(n), *out_buffer).ok());
+  ASSERT_TRUE(cc.EnqueueKernel1D(kernel.get(), n).ok());
+  std::vector<float> out(n);
+  ASSERT_TRUE(cc.ReadBuffer(*out_buffer, 0, n * 4, out.data()).ok());
+  for (size_t i = 0; i < n; ++i) {
+    const std::string what = "a " + std::to_string(a[i]) + ", ratio " + std::to_string(r[i]);
+    const double want = CorrectOpacity(a[i], r[i]);
+    EXPECT_GE(out[i], 0.0f) << what;
+    EXPECT_LE(out[i], 1.0f) << what;
+    if (a[i] == 0.0f || a[i] == 1.0f) {
+      EXPECT_EQ(out[i], a[i]) << what;
+      continue;
+    }
+    const double bound = 4.0 * FLT_EPSILON * std::max<double>(r[i], 1.0);
+    EXPECT_NEAR(out[i], want, bound) << what;
+  }
+}
+
 // Gamma and the opacity correction are one implementation whichever step takes a sample: vector
 // calls (OctoGamma4, OctoCorrectOpacity4) whose lane 0 the single-sample path takes, so a vector
 // builtin that rounds differently from the scalar one cannot make a sample's colour depend on its
 // step. Anisotropic voxels seen obliquely give segments that are no power-of-two multiple of the
-// reference spacing (the log1p / expm1 correction, not squarings), and gamma is on in both
+// reference spacing (the general exp2 / log2 correction, not squarings), and gamma is on in both
 // channels. With skipping on, the cell walk cuts each brick's run into stretches elsewhere than
 // without, so many samples are taken in an eight- or four-sample step in one frame and alone in
 // the other: the images must be bit-identical, and equal the CPU reference.
@@ -1059,43 +1119,57 @@ TEST(VolumeRendererTest, RaysEnteringAnInertVolumeTakeNoSample) {
 // like a 3-D checkerboard between bright spots (even cells) and dim noise (odd cells; their
 // ranges, apron included, reach only dim voxels), so every face of an inert cell leads into a
 // live one. A walk that left a cell through the wrong face, or jumped past its exit, would skip
-// bright samples. The checkerboard has the mode's cells: DVR's coarse (16^3), MIP's fine (8^3).
-// Oblique, nearly axial and perspective rays; bit-identical to skipping off.
+// bright samples. The checkerboard has the mode's cells: DVR's coarse (16^3, over a 128^3 volume
+// so rays cross as many faces as MIP's 8^3 ones in 64^3), MIP's fine. DVR also on bricks of
+// 40 x 24 x 20 over an 8^3 checkerboard: their last coarse cells are partial (8, 8 and 4
+// voxels), and only there does a coarse cell hold one square alone, inert or live. Oblique,
+// nearly axial and perspective rays; bit-identical to skipping off.
 TEST(VolumeRendererTest, TheCellWalkSkipsOnlyInertCells) {
   OCTO_REQUIRE_OPENCL_DEVICE();
-  const auto checkerboard = [](int64_t cell) {
-    SceneSpec spec;
-    spec.size = {64, 64, 64};
-    spec.brick = {32, 32, 32};
-    spec.channels = 1;
-    spec.value = [cell](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
-      const bool even = (x / cell + y / cell + z / cell) % 2 == 0;
-      const auto inner = [cell](int64_t v) { return v % cell >= 1 && v % cell <= cell - 2; };
-      if (even && inner(x) && inner(y) && inner(z)) {
-        return static_cast<uint16_t>(30000 + Hash(x, y, z, c) % 30000);
-      }
-      return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
-    };
-    return spec;
+  struct Case {
+    RenderMode mode;
+    int64_t square;
+    octree::Vec3 size;
+    octree::Vec3 brick;
   };
-  const Vec3 centre{32, 32, 32};
+  const std::vector<Case> cases = {
+      {RenderMode::kDvr, kCoarseCellSize, {128, 128, 128}, {32, 32, 32}},
+      {RenderMode::kDvr, kCellSize, {80, 48, 40}, {40, 24, 20}},
+      {RenderMode::kMip, kCellSize, {64, 64, 64}, {32, 32, 32}}};
   const std::vector<std::pair<Projection, Vec3>> views = {
       {Projection::kOrthographic, {1, 0.7, 2}},
       {Projection::kOrthographic, {1, 0.05, 0.03}},
       {Projection::kOrthographic, {-0.4, 1, -0.3}},
       {Projection::kPerspective, {0.9, -0.6, 0.5}},
       {Projection::kPerspective, {-0.2, -0.3, -1}}};
-  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
-    auto rig = MakeRig(checkerboard(mode == RenderMode::kDvr ? kCoarseCellSize : kCellSize));
+  for (const Case& test : cases) {
+    SceneSpec spec;
+    spec.size = test.size;
+    spec.brick = test.brick;
+    spec.channels = 1;
+    const int64_t square = test.square;
+    spec.value = [square](int c, int64_t x, int64_t y, int64_t z) -> uint16_t {
+      const bool even = (x / square + y / square + z / square) % 2 == 0;
+      const auto inner = [square](int64_t v) {
+        return v % square >= 1 && v % square <= square - 2;
+      };
+      if (even && inner(x) && inner(y) && inner(z)) {
+        return static_cast<uint16_t>(30000 + Hash(x, y, z, c) % 30000);
+      }
+      return static_cast<uint16_t>(200 + Hash(x, y, z, c) % 800);
+    };
+    auto rig = MakeRig(spec);
     ASSERT_NE(rig, nullptr);
-    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    const Vec3 centre{test.size[0] / 2.0, test.size[1] / 2.0, test.size[2] / 2.0};
+    RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, test.mode);
     params.channels[0].window = 20000;
     params.channels[0].level = 12000;         // Transparent below 2000: the dim noise.
     params.channels[0].opacity_scale = 0.05;  // DVR rays cross many bright cells.
     for (size_t v = 0; v < views.size(); ++v) {
-      const std::string what = std::string(RenderModeName(mode)) + " view " + std::to_string(v);
+      const std::string what = std::string(RenderModeName(test.mode)) + " squares of " +
+                               std::to_string(square) + ", view " + std::to_string(v);
       const Vec3 dir = Normalize(views[v].second);
-      Result<Camera> camera = Camera::LookAt(views[v].first, centre - dir * 150, centre,
+      Result<Camera> camera = Camera::LookAt(views[v].first, centre - dir * 250, centre,
                                              {0.3, -1, 0.2}, 48, 48, 30, 64);
       ASSERT_TRUE(camera.ok()) << camera.status().ToString();
       FrameStats with_stats;
