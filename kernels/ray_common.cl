@@ -199,6 +199,18 @@ float3 OctoChannelTolerance(__global const float* m, float3 box) {
   return 8.0f * FLT_EPSILON * span;
 }
 
+/* A channel transform (row-major 3 x 4, render_format.h) applied to a point: m * (p, 1); and to
+ * a direction: its linear part only. */
+float3 OctoTransformPoint(const __global float* m, float3 p) {
+  return (float3)(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
+                  m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+                  m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
+}
+float3 OctoTransformDirection(const __global float* m, float3 v) {
+  return (float3)(m[0] * v.x + m[1] * v.y + m[2] * v.z, m[4] * v.x + m[5] * v.y + m[6] * v.z,
+                  m[8] * v.x + m[9] * v.y + m[10] * v.z);
+}
+
 /* The position of a channel's sample: transform * p; false when it leaves the volume box. */
 bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRenderFrame f,
                          float3* q) {
@@ -207,9 +219,7 @@ bool OctoChannelPosition(__global const OctoChannelParams* ch, float3 p, OctoRen
     return true;
   }
   const __global float* m = ch->transform;
-  const float3 r = (float3)(m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
-                            m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
-                            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11]);
+  const float3 r = OctoTransformPoint(m, p);
   const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
   const float3 tolerance = OctoChannelTolerance(m, box);
   if (!(all(r >= -tolerance) && all(r <= box + tolerance))) return false;

@@ -948,12 +948,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           float3 e = entry;
           float3 w = u;
           if (!channels[k].identity) {
-            const __global float* m = channels[k].transform;
-            e = (float3)(m[0] * entry.x + m[1] * entry.y + m[2] * entry.z + m[3],
-                         m[4] * entry.x + m[5] * entry.y + m[6] * entry.z + m[7],
-                         m[8] * entry.x + m[9] * entry.y + m[10] * entry.z + m[11]);
-            w = (float3)(m[0] * u.x + m[1] * u.y + m[2] * u.z, m[4] * u.x + m[5] * u.y + m[6] * u.z,
-                         m[8] * u.x + m[9] * u.y + m[10] * u.z);
+            e = OctoTransformPoint(channels[k].transform, entry);
+            w = OctoTransformDirection(channels[k].transform, u);
           }
           run_end = min(run_end, OctoFirstSegmentBeyond(
                                      e, 1.0f / w, fmax(fabs(e.x), fmax(fabs(e.y), fabs(e.z))),
