@@ -87,6 +87,11 @@ bool OctoNodeInBuffer(uint word0) { return (word0 & OCTO_NODE_IN_BUFFER_BIT) != 
 bool OctoNodeHasBrick(uint word0) { return (word0 & OCTO_NODE_HAS_BRICK_BIT) != 0u; }
 uint OctoNodeChildGroup(uint word0) { return word0 & OCTO_NODE_CHILD_GROUP_MASK; }
 
+/* v >> s per component, as three scalar shifts. REQUIRES: 0 <= s < 32. Not `v >> s`: NVIDIA's
+ * OpenCL compiler (driver 580, H200) miscompiled int vectors shifted by a varying scalar inside
+ * the ray caster (every lane came out 0: each ray descended the octree into octant 0). */
+int3 OctoShiftRight3(int3 v, int s) { return (int3)(v.x >> s, v.y >> s, v.z >> s); }
+
 /* Word `word` of node `node`. 64-bit offsets: node ids reach 2^33 (30-bit groups times 8). */
 uint OctoNodeWord(__global const uint* nodes, ulong node, OctoTreeGeometry g, int word) {
   return nodes[node * OctoNodeWords(g) + (ulong)word];

@@ -64,7 +64,7 @@ OctoNodeHit OctoFindNode(__global const uint* nodes, OctoTreeGeometry g, float3 
   while (l > target) {
     const uint group = OctoNodeChildGroup(word0);
     if (group == 0u) break; /* A leaf of the current tree: its data cover the whole region. */
-    const int4 child = target_index >> (l - 1 - target);
+    const int4 child = (int4)(OctoShiftRight3(target_index.xyz, l - 1 - target), 0);
     const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
                                (child.z & 1) * OCTO_OCTANT_Z);
     node = OctoChildNode(group, octant);

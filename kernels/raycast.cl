@@ -74,7 +74,7 @@ int OctoLevelOf(float footprint, OctoTreeGeometry g) {
  * centres of the level's valid voxels (LevelSize = ceil(n / 2^level)). */
 float3 OctoClampToLevel(float3 p, int level, OctoTreeGeometry g) {
   const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
-  const int3 size = (n + (1 << level) - 1) >> level;
+  const int3 size = OctoShiftRight3(n + (1 << level) - 1, level);
   /* Scaling by powers of two is exact: the same as dividing by 2^level. */
   const float3 q = clamp(p * ldexp(1.0f, -level), 0.5f, convert_float3(size) - 0.5f);
   return q * ldexp(1.0f, level);
@@ -295,7 +295,7 @@ __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, Oct
     const uint group = OctoNodeChildGroup(word0);
     if (l <= target || group == 0u) return false;
     /* Descend as OctoFindNode does (residency does not matter: ranges are always present). */
-    const int4 child = target_index >> (l - 1 - target);
+    const int4 child = (int4)(OctoShiftRight3(target_index.xyz, l - 1 - target), 0);
     const uint octant = (uint)((child.x & 1) * OCTO_OCTANT_X + (child.y & 1) * OCTO_OCTANT_Y +
                                (child.z & 1) * OCTO_OCTANT_Z);
     node = OctoChildNode(group, octant);
@@ -588,7 +588,7 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         entry_l = entry * level_scale;
         u_l = u * level_scale;
         const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
-        valid_hi = convert_float3((n + (1 << level) - 1) >> level) - 0.5f;
+        valid_hi = convert_float3(OctoShiftRight3(n + (1 << level) - 1, level)) - 0.5f;
         band_ready = true;
       }
       if (i >= band_base + band_n) {
@@ -672,8 +672,9 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
                      shift <= OCTO_MAX_FALLBACK_LEVELS;
           if (fallback) {
             const int3 n = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
-            hit_valid_hi = convert_float3((n + (1 << shared_hit.level) - 1) >> shared_hit.level) -
-                           0.5f;
+            hit_valid_hi =
+                convert_float3(OctoShiftRight3(n + (1 << shared_hit.level) - 1, shared_hit.level)) -
+                0.5f;
           }
           brick_origin = convert_float3(shared_hit.index.xyz * OctoBrickSize(g));
           last_cell = -1;

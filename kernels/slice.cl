@@ -48,7 +48,7 @@ bool OctoSliceInside(float3 p, float3 hi) {
 /* Valid voxels per axis at `level`: ceil(size / 2^level). */
 float3 OctoLevelSize(OctoTreeGeometry g, int level) {
   const int3 size = (int3)(g.volume_size[0], g.volume_size[1], g.volume_size[2]);
-  return convert_float3((size + (1 << level) - 1) >> level);
+  return convert_float3(OctoShiftRight3(size + (1 << level) - 1, level));
 }
 
 /* p (level-0 voxel coordinates) clamped to the voxel centres of `level`, in level-0 units. */
