@@ -3,7 +3,8 @@
  * ONE plain array in device memory (x fastest, channels interleaved per voxel as in the bricks);
  * no octree, no paging, no level of detail, no empty-space skipping.
  *
- * Per pixel (one work item; the host launches 8x8 work groups): the renderer's ray and clipping
+ * DenseRayCast, per pixel (one work item; the host launches 8x8 work groups; DensePacketRayCast
+ * below casts eight rays per work item on CPUs): the renderer's ray and clipping
  * (OctoPixelRay), segments of f.step voxels from the entry with midpoints entry + (i + 0.5) dt
  * (never accumulated; the last one shortened to the exit, a float sliver none), per enabled
  * channel its transformed position (outside the box: no sample), clamped to the voxel centres
@@ -246,3 +247,192 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
   atomic_inc(&counters[OCTO_COUNTER_FINISHED]);
   image[py * f.width + px] = OctoFinishPixel(f, channels, lut, acc, extreme);
 }
+
+#if OCTO_RUN_LANES >= 8
+/* OctoCorrectOpacity4 of eight lanes, each with its own ratio (ratio: OctoRatio.ratio,
+ * squarings: OctoRatio.squarings per lane): the same operations lane by lane. */
+float8 OctoCorrectOpacity8(float8 a, float8 ratio, int8 squarings) {
+  const int4 s4 = max(squarings.lo, squarings.hi);
+  const int most = max(max(s4.x, s4.y), max(s4.z, s4.w));
+  float8 squared = a;
+  for (int s = 0; s < most; ++s) {
+    squared = select(squared, squared * (2.0f - squared), squarings > s);
+  }
+  if (all(squarings >= 0)) return squared;
+  const float8 general = fmax(1.0f - exp2(ratio * log2(1.0f - a)), 0.0f);
+  const float8 corrected =
+      select(select(general, (float8)(1.0f), a >= 1.0f), (float8)(0.0f), a <= 0.0f);
+  return select(corrected, squared, squarings >= 0);
+}
+
+/* The same rays as DenseRayCast, eight per work item: a block of 4 x 2 pixels marched in
+ * lockstep, segment by segment, each ray a lane of float8s. Along one ray DVR's compositing is a
+ * chain of dependent steps; across rays it is vector work, so a hand-written CPU kernel would
+ * vectorise there (measured: docs/benchmarks.md). The host takes it where OCTO_RUN_LANES is 8 and
+ * no channel has a transform. Per lane the operations are DenseRayCast's: the full segments
+ * (j < segments - 1) in the loop, lanes past their own end or terminated masked, then each lane's
+ * last segment (shortened to the exit) as DenseRayCast's scalar loop takes it. The work item
+ * (bx, by) covers pixels [4 bx, 4 bx + 4) x [2 by, 2 by + 2). */
+__kernel void DensePacketRayCast(__global const ushort* volume, uint channels_stored,
+                                 OctoRenderFrame f, __global const OctoChannelParams* channels,
+                                 __global const float4* lut, __global float4* image,
+                                 volatile __global uint* counters) {
+  const int x0 = 4 * (int)get_global_id(0);
+  const int y0 = 2 * (int)get_global_id(1);
+  if (x0 >= f.width || y0 >= f.height) return;
+  const int3 n = convert_int3((float3)(f.volume[0], f.volume[1], f.volume[2]));
+  const float dt = f.step;
+
+  /* Each lane's ray (a lane off the image or missing the box takes no segment). */
+  float ex[8], ey[8], ez[8], ux[8], uy[8], uz[8], len[8], vpu[8], ratio[8];
+  int squarings[8];
+  int segments[8];
+  int most = 0;
+  for (int l = 0; l < 8; ++l) {
+    const int px = x0 + (l & 3);
+    const int py = y0 + (l >> 2);
+    ex[l] = ey[l] = ez[l] = ux[l] = uy[l] = uz[l] = len[l] = 0.0f;
+    vpu[l] = ratio[l] = 1.0f;
+    squarings[l] = 0;
+    segments[l] = 0;
+    if (px >= f.width || py >= f.height) continue;
+    const OctoRay ray = OctoPixelRay(f, px, py);
+    if (ray.empty) continue;
+    vpu[l] = length(ray.d);
+    const float3 u = ray.d / vpu[l];
+    const float3 entry = ray.o + ray.d * ray.t0;
+    len[l] = (ray.t1 - ray.t0) * vpu[l];
+    const float rounding =
+        OCTO_SLIVER_ULPS * FLT_EPSILON * (fabs(ray.t0) + fabs(ray.t1)) * vpu[l];
+    segments[l] = (int)fmax(1.0f, ceil((len[l] - rounding) / dt));
+    const OctoRatio full = OctoOpacityRatio(dt / vpu[l] * f.inv_reference);
+    ratio[l] = full.ratio;
+    squarings[l] = full.squarings;
+    ex[l] = entry.x;
+    ey[l] = entry.y;
+    ez[l] = entry.z;
+    ux[l] = u.x;
+    uy[l] = u.y;
+    uz[l] = u.z;
+    most = max(most, segments[l]);
+  }
+  const float8 entry_x = vload8(0, ex), entry_y = vload8(0, ey), entry_z = vload8(0, ez);
+  const float8 u_x = vload8(0, ux), u_y = vload8(0, uy), u_z = vload8(0, uz);
+  const int8 full_segments = vload8(0, segments) - 1;
+#if OCTO_MODE == OCTO_MODE_DVR
+  const float8 lane_ratio = vload8(0, ratio);
+  const int8 lane_squarings = vload8(0, squarings);
+#endif
+
+  float8 acc_r = (float8)(0.0f), acc_g = (float8)(0.0f), acc_b = (float8)(0.0f);
+  float8 acc_a = (float8)(0.0f);
+  float8 ext[OCTO_DENSE_ACTIVE];
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
+    ext[k] = (float8)(OCTO_MODE == OCTO_MODE_MIP ? -1.0f : INFINITY);
+  }
+  uint samples = 0u;
+  OctoRatio unit; /* OctoShade4 shades only; the lanes' own ratios correct below. */
+  unit.ratio = 1.0f;
+  unit.squarings = 0;
+  (void)unit;
+  /* The full segments, all lanes at once. */
+  for (int j = 0; j + 1 < most; ++j) {
+    int8 active = full_segments > j;
+#if OCTO_MODE == OCTO_MODE_DVR
+    active &= acc_a < 0.999f;
+#endif
+    if (!any(active)) break;
+    const float arc = (float)j * dt + 0.5f * dt;
+    const OctoDenseFootprint8 fp = OctoDenseFootprintAt8(
+        entry_x + u_x * arc, entry_y + u_y * arc, entry_z + u_z * arc, n, channels_stored);
+    const uint lanes = (uint)(-(active.s0 + active.s1 + active.s2 + active.s3 + active.s4 +
+                                active.s5 + active.s6 + active.s7));
+    samples += lanes * (uint)OCTO_DENSE_ACTIVE;
+#if OCTO_MODE == OCTO_MODE_DVR
+    float8 mix_r = (float8)(0.0f), mix_g = (float8)(0.0f), mix_b = (float8)(0.0f);
+    float8 transmit = (float8)(1.0f);
+#endif
+    for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
+      const float8 v = OctoDenseRead8(volume, fp, channels[k].channel);
+#if OCTO_MODE == OCTO_MODE_DVR
+      /* OctoShade4's operations on both halves: transfer function, gamma, opacity. */
+      float4 r0, g0, b0, r1, g1, b1;
+      const float4 a0 = OctoShade4(&channels[k], lut, v.lo, unit, &r0, &g0, &b0);
+      const float4 a1 = OctoShade4(&channels[k], lut, v.hi, unit, &r1, &g1, &b1);
+      const float8 a = OctoCorrectOpacity8((float8)(a0, a1), lane_ratio, lane_squarings);
+      mix_r += (float8)(r0, r1) * a;
+      mix_g += (float8)(g0, g1) * a;
+      mix_b += (float8)(b0, b1) * a;
+      transmit *= 1.0f - a;
+#elif OCTO_MODE == OCTO_MODE_MIP
+      ext[k] = select(ext[k], fmax(ext[k], v), active);
+#else
+      ext[k] = select(ext[k], fmin(ext[k], v), active);
+#endif
+    }
+#if OCTO_MODE == OCTO_MODE_DVR
+    /* OctoCompositeUnder, lane by lane. */
+    const float8 mix_a = 1.0f - transmit;
+    const float8 behind = 1.0f - acc_a;
+    acc_r = select(acc_r, acc_r + behind * fmin(mix_r, mix_a), active);
+    acc_g = select(acc_g, acc_g + behind * fmin(mix_g, mix_a), active);
+    acc_b = select(acc_b, acc_b + behind * fmin(mix_b, mix_a), active);
+    acc_a = select(acc_a, acc_a + behind * mix_a, active);
+#endif
+  }
+
+  /* Each lane's last segment, as DenseRayCast's scalar loop takes it, then its pixel. */
+  float ar[8], ag[8], ab[8], aa[8];
+  vstore8(acc_r, 0, ar);
+  vstore8(acc_g, 0, ag);
+  vstore8(acc_b, 0, ab);
+  vstore8(acc_a, 0, aa);
+  float extreme_lanes[OCTO_DENSE_ACTIVE][8];
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) vstore8(ext[k], 0, extreme_lanes[k]);
+  uint finished = 0u;
+  for (int l = 0; l < 8; ++l) {
+    const int px = x0 + (l & 3);
+    const int py = y0 + (l >> 2);
+    if (px >= f.width || py >= f.height) continue;
+    float4 acc = (float4)(ar[l], ag[l], ab[l], aa[l]);
+    float extreme[OCTO_DENSE_ACTIVE];
+    for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) extreme[k] = extreme_lanes[k][l];
+#if OCTO_MODE == OCTO_MODE_DVR
+    const bool open = acc.w < 0.999f; /* Not terminated in the loop. */
+#else
+    const bool open = true;
+#endif
+    if (segments[l] > 0 && open) {
+      const float start = (float)(segments[l] - 1) * dt;
+      const float seg = len[l] - start;
+      const float3 entry = (float3)(ex[l], ey[l], ez[l]);
+      const float3 u = (float3)(ux[l], uy[l], uz[l]);
+      const OctoDenseFootprint fp = OctoDenseFootprintAt(entry + u * (start + 0.5f * seg), n,
+                                                         channels_stored);
+#if OCTO_MODE == OCTO_MODE_DVR
+      const OctoRatio last = OctoOpacityRatio(seg / vpu[l] * f.inv_reference);
+      float3 mix_rgb = (float3)(0.0f);
+      float transmit = 1.0f;
+#endif
+      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
+        const float v = OctoDenseRead(volume, fp, channels[k].channel);
+#if OCTO_MODE == OCTO_MODE_DVR
+        OctoMixChannel(&channels[k], lut, v, last, &mix_rgb, &transmit);
+#elif OCTO_MODE == OCTO_MODE_MIP
+        extreme[k] = fmax(extreme[k], v);
+#else
+        extreme[k] = fmin(extreme[k], v);
+#endif
+      }
+      samples += (uint)OCTO_DENSE_ACTIVE;
+#if OCTO_MODE == OCTO_MODE_DVR
+      acc = OctoCompositeUnder(acc, mix_rgb, transmit);
+#endif
+    }
+    image[py * f.width + px] = OctoFinishPixel(f, channels, lut, acc, extreme);
+    ++finished;
+  }
+  OctoAddSamples(counters, samples);
+  atomic_add(&counters[OCTO_COUNTER_FINISHED], finished);
+}
+#endif

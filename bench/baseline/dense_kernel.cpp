@@ -97,18 +97,21 @@ Result<RenderImage> DenseKernel::Render(const Camera& camera, const RenderParams
   // Level 0 everywhere (the kernel has no levels) and no skipping: the frame as the renderer's.
   const render::PackedFrame packed =
       render::PackRenderFrame(camera, params, 0, false, size_, spacing_);
-  // One program per (mode, enabled channel count).
-  const std::pair<int, int> key{render::KernelModeDefine(params.mode),
-                                std::max(1, packed.frame.active_channels)};
+  // Eight rays per work item (DensePacketRayCast) on devices with 8-lane float vectors (CPUs)
+  // when no channel has a transform; else one ray per work item.
+  const int lanes = render::RunLanes(context_->device());
+  const bool packets = packets_allowed_ && lanes >= 8 && packed.all_identity;
+  // One program per (mode, enabled channel count); its kernel per packets.
+  const std::tuple<int, int, bool> key{render::KernelModeDefine(params.mode),
+                                       std::max(1, packed.frame.active_channels), packets};
   auto it = kernels_.find(key);
   if (it == kernels_.end()) {
-    OCTO_ASSIGN_OR_RETURN(
-        ClKernel kernel,
-        programs_->CreateKernel(
-            "dense_baseline.cl", "DenseRayCast",
-            "-DOCTO_MODE=" + std::to_string(key.first) +
-                " -DOCTO_DENSE_ACTIVE=" + std::to_string(key.second) +
-                " -DOCTO_RUN_LANES=" + std::to_string(render::RunLanes(context_->device()))));
+    OCTO_ASSIGN_OR_RETURN(ClKernel kernel,
+                          programs_->CreateKernel(
+                              "dense_baseline.cl", packets ? "DensePacketRayCast" : "DenseRayCast",
+                              "-DOCTO_MODE=" + std::to_string(std::get<0>(key)) +
+                                  " -DOCTO_DENSE_ACTIVE=" + std::to_string(std::get<1>(key)) +
+                                  " -DOCTO_RUN_LANES=" + std::to_string(lanes)));
     it = kernels_.emplace(key, std::move(kernel)).first;
   }
   const cl_kernel kernel = it->second.get();
@@ -132,9 +135,11 @@ Result<RenderImage> DenseKernel::Render(const Camera& camera, const RenderParams
                                              packed.frame, channel_buffer, lut_buffer, image_,
                                              counters_));
 
-  // 2-D range rounded up to whole 8x8 tiles (a device whose limit is below a tile chooses).
+  // 2-D range of work items (pixels, or 4 x 2 pixel blocks) rounded up to whole 8x8 tiles (a
+  // device whose limit is below a tile chooses).
   const auto round_up = [](int n) { return (static_cast<size_t>(n) + kTile - 1) / kTile * kTile; };
-  const size_t global[2] = {round_up(camera.width()), round_up(camera.height())};
+  const size_t global[2] = {round_up(packets ? (camera.width() + 3) / 4 : camera.width()),
+                            round_up(packets ? (camera.height() + 1) / 2 : camera.height())};
   const size_t local[2] = {kTile, kTile};
   size_t max_group = 0;
   OCTO_RETURN_IF_ERROR(OCTO_CL(clGetKernelWorkGroupInfo(

@@ -196,6 +196,40 @@ TEST(DenseKernelTest, CountsTheSameSamplesAsTheReference) {
   EXPECT_EQ(dense->volume_bytes(), 20u * 20 * 20 * 3 * 2);
 }
 
+// Eight rays per work item (where the device has 8-lane vectors) or one: the same samples, early
+// termination included, and the same pixels up to float rounding.
+TEST(DenseKernelTest, PacketsOfRaysTakeTheSameSamplesAsSingleRays) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  for (const Vec3 spacing : {Vec3{1, 1, 1}, Vec3{0.5, 0.5, 1.25}}) {
+    auto rig = testing::MakeRig(Spec({28, 24, 20}, spacing, 2));
+    ASSERT_NE(rig, nullptr);
+    auto dense = MakeDense(*rig);
+    ASSERT_NE(dense, nullptr);
+    for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip}) {
+      RenderParams params = Params(2, mode, 0.7);
+      for (ChannelParams& cp : params.channels) cp.opacity_scale = 1;  // Rays terminate.
+      // 30 x 25: blocks of 4 x 2 pixels cut at the right and bottom edges.
+      const Camera camera =
+          testing::Standard(*rig, StandardView::kIso, Projection::kPerspective, 30, 25);
+      DenseKernelStats packed_stats;
+      DenseKernelStats single_stats;
+      dense->set_packets(true);
+      const RenderImage packed = Dense(*dense, camera, params, &packed_stats);
+      dense->set_packets(false);
+      const RenderImage single = Dense(*dense, camera, params, &single_stats);
+      EXPECT_EQ(packed_stats.samples, single_stats.samples) << RenderModeName(mode);
+      EXPECT_EQ(packed_stats.rays, 30u * 25u);
+      EXPECT_LE(CompareImages(packed, single).max_abs, 1e-5) << RenderModeName(mode);
+      if (mode == RenderMode::kDvr) {
+        // Early termination happened: fewer samples than MIP's full rays.
+        DenseKernelStats mip_stats;
+        Dense(*dense, camera, Params(2, RenderMode::kMip, 0.7), &mip_stats);
+        EXPECT_LT(packed_stats.samples, mip_stats.samples);
+      }
+    }
+  }
+}
+
 TEST(DenseKernelTest, RejectsInvalidVolumesAndParams) {
   OCTO_REQUIRE_OPENCL_DEVICE();
   const ClTestEnv& env = SharedClTestEnv();
