@@ -15,6 +15,7 @@
 
 #include "render/camera.h"
 #include "render/cl_test_env.h"
+#include "render/device.h"
 #include "render/reference_renderer.h"
 #include "render/render_fixture.h"
 #include "render/render_params.h"
@@ -200,6 +201,9 @@ TEST(DenseKernelTest, CountsTheSameSamplesAsTheReference) {
 // termination included, and the same pixels up to float rounding.
 TEST(DenseKernelTest, PacketsOfRaysTakeTheSameSamplesAsSingleRays) {
   OCTO_REQUIRE_OPENCL_DEVICE();
+  if (render::RunLanes(SharedClTestEnv().context->device()) < 8) {
+    GTEST_SKIP() << "this device casts one ray per work item (RunLanes < 8): nothing to compare";
+  }
   for (const Vec3 spacing : {Vec3{1, 1, 1}, Vec3{0.5, 0.5, 1.25}}) {
     auto rig = testing::MakeRig(Spec({28, 24, 20}, spacing, 2));
     ASSERT_NE(rig, nullptr);
