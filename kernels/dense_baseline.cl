@@ -159,6 +159,48 @@ OCTO_DEFINE_DENSE_N(4)
 OCTO_DEFINE_DENSE_N(8)
 #endif
 
+/* One segment of a ray, one at a time (DenseRayCast's loop after its N-wide steps, and each
+ * packet lane's last segment): every enabled channel at the midpoint p (a transformed channel at
+ * its own position; outside the box: no sample) read and mixed into the ray state with the
+ * segment's opacity ratio. Returns true when the ray terminates (DVR). */
+bool OctoDenseSegment(__global const ushort* volume, uint channels_stored, int3 n,
+                      OctoRenderFrame f, __global const OctoChannelParams* channels,
+                      __global const float4* lut, float3 p, OctoRatio ratio, float4* acc,
+                      float* extreme, uint* samples) {
+  (void)lut;
+  (void)ratio;
+  (void)acc;
+  /* Channels without a transform share one footprint. */
+  const OctoDenseFootprint shared = OctoDenseFootprintAt(p, n, channels_stored);
+#if OCTO_MODE == OCTO_MODE_DVR
+  float3 mix_rgb = (float3)(0.0f);
+  float transmit = 1.0f;
+#endif
+  for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
+    OctoDenseFootprint fp = shared;
+    if (!channels[k].identity) {
+      float3 q;
+      if (!OctoChannelPosition(&channels[k], p, f, &q)) continue;
+      fp = OctoDenseFootprintAt(q, n, channels_stored);
+    }
+    const float v = OctoDenseRead(volume, fp, channels[k].channel);
+    ++*samples;
+#if OCTO_MODE == OCTO_MODE_DVR
+    OctoMixChannel(&channels[k], lut, v, ratio, &mix_rgb, &transmit);
+#elif OCTO_MODE == OCTO_MODE_MIP
+    extreme[k] = fmax(extreme[k], v);
+#else
+    extreme[k] = fmin(extreme[k], v);
+#endif
+  }
+#if OCTO_MODE == OCTO_MODE_DVR
+  *acc = OctoCompositeUnder(*acc, mix_rgb, transmit);
+  return acc->w >= 0.999f; /* Early termination, as the renderer. */
+#else
+  return false;
+#endif
+}
+
 /* volume: n.x * n.y * n.z * channels samples (f.volume = n); channels: one entry per enabled
  * channel; image: width * height float4; counters: OCTO_COUNTER_WORDS (finished rays, samples). */
 __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, OctoRenderFrame f,
@@ -211,36 +253,11 @@ __kernel void DenseRayCast(__global const ushort* volume, uint channels_stored, 
     for (; !terminated && j < segments; ++j) {
       const float start = (float)j * dt;
       const float seg = j + 1u < segments ? dt : len - start;
-      const float3 p = entry + u * (start + 0.5f * seg);
-      /* Channels without a transform share one footprint. */
-      const OctoDenseFootprint shared = OctoDenseFootprintAt(p, n, channels_stored);
-#if OCTO_MODE == OCTO_MODE_DVR
       const OctoRatio ratio =
           j + 1u < segments ? ratio_full : OctoOpacityRatio(seg / vpu * f.inv_reference);
-      float3 mix_rgb = (float3)(0.0f);
-      float transmit = 1.0f;
-#endif
-      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-        OctoDenseFootprint fp = shared;
-        if (!channels[k].identity) {
-          float3 q;
-          if (!OctoChannelPosition(&channels[k], p, f, &q)) continue;
-          fp = OctoDenseFootprintAt(q, n, channels_stored);
-        }
-        const float v = OctoDenseRead(volume, fp, channels[k].channel);
-        ++samples;
-#if OCTO_MODE == OCTO_MODE_DVR
-        OctoMixChannel(&channels[k], lut, v, ratio, &mix_rgb, &transmit);
-#elif OCTO_MODE == OCTO_MODE_MIP
-        extreme[k] = fmax(extreme[k], v);
-#else
-        extreme[k] = fmin(extreme[k], v);
-#endif
-      }
-#if OCTO_MODE == OCTO_MODE_DVR
-      acc = OctoCompositeUnder(acc, mix_rgb, transmit);
-      if (acc.w >= 0.999f) break; /* Early termination, as the renderer. */
-#endif
+      terminated = OctoDenseSegment(volume, channels_stored, n, f, channels, lut,
+                                    entry + u * (start + 0.5f * seg), ratio, &acc, extreme,
+                                    &samples);
     }
   }
   OctoAddSamples(counters, samples);
@@ -259,10 +276,7 @@ float8 OctoCorrectOpacity8(float8 a, float8 ratio, int8 squarings) {
     squared = select(squared, squared * (2.0f - squared), squarings > s);
   }
   if (all(squarings >= 0)) return squared;
-  const float8 general = fmax(1.0f - exp2(ratio * log2(1.0f - a)), 0.0f);
-  const float8 corrected =
-      select(select(general, (float8)(1.0f), a >= 1.0f), (float8)(0.0f), a <= 0.0f);
-  return select(corrected, squared, squarings >= 0);
+  return select(OCTO_CORRECT_GENERAL(float8, a, ratio), squared, squarings >= 0);
 }
 
 /* The same rays as DenseRayCast, eight per work item: a block of 4 x 2 pixels marched in
@@ -407,27 +421,9 @@ __kernel void DensePacketRayCast(__global const ushort* volume, uint channels_st
       const float seg = len[l] - start;
       const float3 entry = (float3)(ex[l], ey[l], ez[l]);
       const float3 u = (float3)(ux[l], uy[l], uz[l]);
-      const OctoDenseFootprint fp = OctoDenseFootprintAt(entry + u * (start + 0.5f * seg), n,
-                                                         channels_stored);
-#if OCTO_MODE == OCTO_MODE_DVR
-      const OctoRatio last = OctoOpacityRatio(seg / vpu[l] * f.inv_reference);
-      float3 mix_rgb = (float3)(0.0f);
-      float transmit = 1.0f;
-#endif
-      for (int k = 0; k < OCTO_DENSE_ACTIVE; ++k) {
-        const float v = OctoDenseRead(volume, fp, channels[k].channel);
-#if OCTO_MODE == OCTO_MODE_DVR
-        OctoMixChannel(&channels[k], lut, v, last, &mix_rgb, &transmit);
-#elif OCTO_MODE == OCTO_MODE_MIP
-        extreme[k] = fmax(extreme[k], v);
-#else
-        extreme[k] = fmin(extreme[k], v);
-#endif
-      }
-      samples += (uint)OCTO_DENSE_ACTIVE;
-#if OCTO_MODE == OCTO_MODE_DVR
-      acc = OctoCompositeUnder(acc, mix_rgb, transmit);
-#endif
+      OctoDenseSegment(volume, channels_stored, n, f, channels, lut,
+                       entry + u * (start + 0.5f * seg),
+                       OctoOpacityRatio(seg / vpu[l] * f.inv_reference), &acc, extreme, &samples);
     }
     image[py * f.width + px] = OctoFinishPixel(f, channels, lut, acc, extreme);
     ++finished;

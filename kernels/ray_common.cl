@@ -167,6 +167,12 @@ OctoRatio OctoOpacityRatio(float ratio) {
  * own 1 - a loses (OpacityCorrectionMatchesTheDoubleFormula; no image moved against the
  * reference, even at the finest step: docs/benchmarks.md). The one implementation: the scalar
  * path (OctoCorrectOpacity) takes lane 0 of the same call, as OctoGamma4. */
+/* The general case lane by lane (T: the vector type of `a`; `ratio` a float or a T), 0 and 1
+ * kept exact. fmax: exp2 may round a little above 1 (3 ulps allowed), never a negative alpha.
+ * Also the dense baseline's eight-lane correction (OctoCorrectOpacity8). */
+#define OCTO_CORRECT_GENERAL(T, a, ratio)                                                          \
+  select(select(fmax(1.0f - exp2((ratio) * log2(1.0f - (a))), 0.0f), (T)(1.0f), (a) >= 1.0f),      \
+         (T)(0.0f), (a) <= 0.0f)
 float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   if (r.squarings >= 0) {
     for (int s = 0; s < r.squarings; ++s) a *= 2.0f - a;
@@ -174,9 +180,7 @@ float4 OctoCorrectOpacity4(float4 a, OctoRatio r) {
   }
   /* Transparent (and opaque) samples need no correction: without skipping most samples are. */
   if (!any((a > 0.0f) & (a < 1.0f))) return a;
-  /* fmax: exp2 may round a little above 1 (3 ulps allowed), never a negative alpha. */
-  const float4 corrected = fmax(1.0f - exp2(r.ratio * log2(1.0f - a)), 0.0f);
-  return select(select(corrected, (float4)(1.0f), a >= 1.0f), (float4)(0.0f), a <= 0.0f);
+  return OCTO_CORRECT_GENERAL(float4, a, r.ratio);
 }
 
 /* The same for one alpha (any value: clamped into [0, 1] first). GPU compilers split vectors into
