@@ -8,10 +8,11 @@
 // segment midpoints, reads 8 voxels per channel and sample (trilinear, clamp to edge), and
 // composites with the renderer's transfer function — in 8x8 work groups, without octree, paging,
 // level of detail or empty-space skipping. On devices with 8-lane float vectors (CPUs) and without
-// channel transforms a work item casts eight rays (a 4 x 2 pixel block) in lockstep as vector
-// lanes (DensePacketRayCast): DVR's compositing is a chain along a ray but vector work across
-// rays: on PoCL at 1024², DVR 1.06x and MIP 1.12x faster than one ray per work item
-// (docs/benchmarks.md). Its images equal the renderer's at level 0 and
+// channel transforms a work item may cast eight rays (a 4 x 2 pixel block) in lockstep as vector
+// lanes (DensePacketRayCast; set_packets): DVR's compositing is a chain along a ray but vector
+// work across rays. Which form is faster depends on the view (on PoCL: packets 1.06-1.12x at
+// 1024^2 of 512^3, 0.86-0.96x at 256^2), so `bench render` times both and takes the faster.
+// Its images equal the renderer's at level 0 and
 // the CPU reference within float rounding (tests/bench/dense_kernel_test.cpp).
 //
 // Thread safety: not thread-safe (one kernel object whose arguments Render sets); use from one
