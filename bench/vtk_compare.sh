@@ -3,9 +3,11 @@
 # (issue 12, item 6; docs/benchmarks.md "Side by side with VTK").
 #   VTK: vtkFixedPointVolumeRayCastMapper (CPU, all cores) and vtkGPUVolumeRayCastMapper (OpenGL;
 #        Mesa llvmpipe under Xvfb on a machine without GPU), Debian's python3-vtk9.
-#   Octoscope: `octoscope render CACHE --refine` (refined, the final image) and the first image
+#   Octoscope: `octoscope render CACHE --refine` (refined, the final image), the first image
 #        after opening the cache: one full frame over the coarse levels (preloaded when the
-#        cache is opened), at 1/4, 1/2 and full scale (--scale: upsampled as the browser does).
+#        cache is opened), at 1/4, 1/2 and full scale (--scale: upsampled as the browser does),
+#        and steady frames (everything resident): lossless, and opt-in lossy settings (--step 2,
+#        --scale S) for the comparison at VTK's error.
 #   Error: every image against Octoscope's double-precision CPU reference of the same view
 #        (`octoscope render SCAN --cpu-reference`), as PSNR and max difference of 8-bit RGB
 #        composited over black.
@@ -15,7 +17,8 @@
 # SPACING: µm per voxel along x, y, z for both renderers (the demo file says 0.4,0.4,2; the serve
 # demo shows 0.5,0.5,1); each spacing wants its own OCTOSCOPE_BENCH_DIR (camera and references).
 # Leaves everything in $OCTOSCOPE_BENCH_DIR (default out/bench-vtk): the inputs, every image,
-# results.jsonl (one JSON line per measurement) and vtk_compare.md (the table, also printed).
+# results.jsonl (one JSON line per measurement), vtk_compare.md (the tables, also printed) and
+# vtk_compare.svg (speed against error of the per-frame figures).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 build="${OCTOSCOPE_BUILD_DIR:-$root/build}"
@@ -99,14 +102,22 @@ for mode in mip dvr; do
   done
   # Steady frames: full frames until one finds everything resident; that last frame is the
   # refined image re-rendered (what VTK's per-frame figure measures: the volume already loaded).
-  # The same with samples 2 voxels apart (opt-in, lossy; its error is reported like VTK's, which
-  # it must not exceed for the "equal or lower error" comparison).
-  for step in 1 2; do
+  # Then the opt-in, lossy settings, each with its error, for the comparison at VTK's error
+  # ("equal or lower error"): samples 2 voxels apart (--step 2), and rays cast at SCALE x the
+  # size per axis (--scale, upsampled bilinearly as the browser shows interactive frames; the
+  # upsampling's time is added to the frame's) at step 1 and 2. OCTOSCOPE_VTK_SCALES: the scales
+  # (default "0.5 0.6 0.7 0.8 0.9"; empty: none).
+  settings=("1 1" "1 2")
+  for scale in ${OCTOSCOPE_VTK_SCALES-0.5 0.6 0.7 0.8 0.9}; do settings+=("$scale 1" "$scale 2"); done
+  for setting in "${settings[@]}"; do
+    read -r scale step <<< "$setting"
     what="steady"
-    [ "$step" = 1 ] || what="steady, step $step"
+    [ "$scale" = 1 ] || what="$what, scale $scale"
+    [ "$step" = 1 ] || what="$what, step $step"
     for ((f = 0; f < frames; ++f)); do
-      img="$out/octoscope_steady_step${step}_$mode.png"
-      stats=$("$bin" render "$out/cache" "${common[@]}" --step "$step" --stats-json --out "$img")
+      img="$out/octoscope_steady_scale${scale}_step${step}_$mode.png"
+      stats=$("$bin" render "$out/cache" "${common[@]}" --scale "$scale" --step "$step" \
+        --stats-json --out "$img")
       err=$(compare "$img" "$ref")
       echo "{\"renderer\":\"octoscope\",\"what\":\"$what\",\"mode\":\"$mode\",\"stats\":$stats,\"error\":$err}" >> "$out/results.jsonl"
     done
@@ -125,7 +136,7 @@ for mode in mip dvr; do
   done; done
 done
 echo "load average after: $(cut -d' ' -f1-3 /proc/loadavg)" >> "$out/machine.txt"
-"$py" "$root/bench/vtk_report.py" "$out/results.jsonl" > "$out/vtk_compare.md"
+"$py" "$root/bench/vtk_report.py" "$out/results.jsonl" "$out/vtk_compare.svg" > "$out/vtk_compare.md"
 cat "$out/machine.txt"
 echo
 cat "$out/vtk_compare.md"

@@ -596,8 +596,11 @@ int RunRender(std::span<const std::string> args) {
   // 7. Upsampled to the output size (--scale), then the slice planes over it (an overlay: the
   //    volume does not hide them).
   render::RenderImage& image = outcome->image;
+  double ms_upsample = 0;
   if (image.width != width || image.height != height) {
+    const auto upsample_start = std::chrono::steady_clock::now();
     image = render::BilinearUpsample(image, width, height);  // No copy of a full-size image.
+    ms_upsample = MsSince(upsample_start);
   }
   if (Status s = render::DrawSlicePlanes(&image, *camera, bounds, planes); !s.ok()) {
     return Fail(input, s);
@@ -619,6 +622,7 @@ int RunRender(std::span<const std::string> args) {
     report.bricks_uploaded = s.bricks_uploaded;
     report.bricks_preloaded = preload.uploaded;
     report.scale = *scale;
+    report.ms_upsample = ms_upsample;
     report.samples = s.samples;
     report.samples_skipped = s.samples_skipped;
     report.requests = s.requests;

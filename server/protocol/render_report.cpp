@@ -15,7 +15,10 @@ std::string RenderReportJson(const RenderReport& r) {
   j["final"] = r.final;
   j["width"] = r.width;
   j["height"] = r.height;
-  if (r.scale != 1) j["scale"] = r.scale;
+  if (r.scale != 1) {
+    j["scale"] = r.scale;
+    j["ms_upsample"] = r.ms_upsample;
+  }
   j["mode"] = r.mode;
   j["device"] = r.device;
   j["projection"] = r.projection;

@@ -19,6 +19,7 @@ struct RenderReport {
   uint64_t bricks_uploaded = 0;
   uint64_t bricks_preloaded = 0;  // The coarsest levels, uploaded before the first frame.
   double scale = 1;               // --scale: rays cast at scale x the size per axis, upsampled.
+  double ms_upsample = 0;         // With scale < 1: wall time of that upsampling (not in ms_total).
   uint64_t samples = 0;           // Channel samples taken, all passes.
   uint64_t samples_skipped = 0;   // Channel samples jumped over by empty-space skipping.
   uint64_t requests = 0;          // Node requests read back, all passes.

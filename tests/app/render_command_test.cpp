@@ -342,6 +342,7 @@ TEST_F(RenderCommandTest, ReducedScaleIsTheSmallerRenderUpsampledBilinearly) {
   const auto j = nlohmann::json::parse(r.out);
   EXPECT_EQ(j["width"], 80);
   EXPECT_EQ(j["scale"], 0.5);
+  EXPECT_GE(j["ms_upsample"].get<double>(), 0);    // Timed apart from the frames.
   EXPECT_GE(j["bricks_preloaded"].get<int>(), 1);  // The coarse levels, before the first frame.
   const DecodedPng a = DecodeTestPng(testing::ReadAll(small));
   const DecodedPng b = DecodeTestPng(testing::ReadAll(scaled));
