@@ -22,8 +22,10 @@
  * channels without transforms, one per channel with them), trilinear brick sample or node
  * average, transfer function, compositing. Inside a brick resident at the sample's level, samples
  * go eight or four at a time (brick runs; with transforms, transformed runs). Empty-space skipping
- * (docs/rendering.md; without transforms) jumps over inert nodes (node value ranges), inert cells
- * of resident bricks (cell ranges) and brickless leaves, without changing the image.
+ * (docs/rendering.md) jumps over inert nodes (node value ranges), inert cells of resident bricks
+ * (cell ranges) and brickless leaves, without changing the image; with transforms, over positions
+ * where every channel lies in an inert node of its own, and over transformed runs' steps whose
+ * lanes all lie in inert cells.
  */
 #include "render_format.h"
 
@@ -182,11 +184,14 @@ bool OctoRangeInert(uint range, __global const OctoChannelParams* channels, cons
 #endif
 }
 
-bool OctoNodeInert(__global const uint* nodes, ulong node, OctoTreeGeometry g, OctoRenderFrame f,
-                   __global const OctoChannelParams* channels, const float* extreme) {
+/* OctoNodeInert for the enabled channels [k_begin, k_end) only (all: 0, OCTO_ACTIVE_N). Forced
+ * inline, as OctoInertNodeBox: constant bounds keep the all-channel loop fixed at build time. */
+__attribute__((always_inline)) bool OctoNodeInert(
+    __global const uint* nodes, ulong node, OctoTreeGeometry g, OctoRenderFrame f,
+    __global const OctoChannelParams* channels, const float* extreme, int k_begin, int k_end) {
   (void)f; /* Only the unspecialised channel count reads it. */
   const ulong base = node * OctoNodeWords(g) + (ulong)OCTO_NODE_RANGE_WORD(OctoStoredChannels(g));
-  for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+  for (int k = k_begin; k < k_end; ++k) {
     if (!OctoRangeInert(nodes[base + (ulong)OCTO_CHANNEL_OF(k)], channels, extreme, k)) {
       return false;
     }
@@ -226,11 +231,11 @@ void OctoShrunkNodeBox(OctoTreeGeometry g, int3 index, int l, float3 shell, floa
  * when it is inert but p lies in that shell. Where that level's voxels do not tile the box (the
  * brick size not a multiple of 2^(data_level - l) along an axis), a voxel straddling the face
  * counts as outside. */
-bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node, int3 index,
-                      int l, int data_level, float3 p, OctoRenderFrame f,
-                      __global const OctoChannelParams* channels, const float* extreme,
-                      float3* lo, float3* hi, bool* near_face) {
-  if (!OctoNodeInert(nodes, node, g, f, channels, extreme)) return false;
+__attribute__((always_inline)) bool OctoInertNodeBox(
+    __global const uint* nodes, OctoTreeGeometry g, ulong node, int3 index, int l, int data_level,
+    float3 p, OctoRenderFrame f, __global const OctoChannelParams* channels, const float* extreme,
+    int k_begin, int k_end, float3* lo, float3* hi, bool* near_face) {
+  if (!OctoNodeInert(nodes, node, g, f, channels, extreme, k_begin, k_end)) return false;
   const int3 straddles = (OctoBrickSize(g) & ((1 << (data_level - l)) - 1)) != 0;
   const float3 shell =
       ldexp(0.5f, data_level) + select((float3)(0.0f), (float3)(ldexp(1.0f, data_level)), straddles);
@@ -261,8 +266,8 @@ bool OctoInertNodeBox(__global const uint* nodes, OctoTreeGeometry g, ulong node
 __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, OctoTreeGeometry g,
                                                  float3 p, int level, OctoRenderFrame f,
                                                  __global const OctoChannelParams* channels,
-                                                 const float* extreme, float3* lo, float3* hi,
-                                                 bool* near_face) {
+                                                 const float* extreme, int k_begin, int k_end,
+                                                 float3* lo, float3* hi, bool* near_face) {
   const int target = clamp(level, 0, g.root_level);
   const int4 target_index = OctoNodeIndex(p, target, g); /* Shifted per level (OctoFindNode). */
   ulong node = 0;
@@ -289,7 +294,7 @@ __attribute__((always_inline)) bool OctoInertBox(__global const uint* nodes, Oct
     }
 #endif
     if (may_skip && OctoInertNodeBox(nodes, g, node, index.xyz, l, data_level, p, f, channels,
-                                     extreme, lo, hi, near_face)) {
+                                     extreme, k_begin, k_end, lo, hi, near_face)) {
       return true;
     }
     const uint group = OctoNodeChildGroup(word0);
@@ -373,27 +378,57 @@ OCTO_DEFINE_RUN_STEP_N(4)
 OCTO_DEFINE_RUN_STEP_N(8)
 #endif
 
+/* Whether none of N samples can change the ray for enabled channel k (OctoRangeInert): each lane's
+ * cell (cell ranges; `words`: its slot's cells, OctoCellOffset included) at brick-local level
+ * position (bx, by, bz), inside the brick. A cell's range covers every voxel a trilinear sample
+ * inside it reads (cell_ranges.h). */
+#define OCTO_DEFINE_LANES_INERT_N(N)                                                               \
+  __attribute__((always_inline)) bool OctoLanesInert##N(                                           \
+      __global const uint* words, OctoTreeGeometry g, float##N bx, float##N by, float##N bz,       \
+      __global const OctoChannelParams* channels, const float* extreme, int k) {                   \
+    const int3 cells = OctoCellsPerAxis(g);                                                        \
+    const int##N cx = min(convert_int##N(bx) / OCTO_CELL_SIZE, cells.x - 1);                       \
+    const int##N cy = min(convert_int##N(by) / OCTO_CELL_SIZE, cells.y - 1);                       \
+    const int##N cz = min(convert_int##N(bz) / OCTO_CELL_SIZE, cells.z - 1);                       \
+    int lanes[N];                                                                                  \
+    vstore##N((cz * cells.y + cy) * cells.x + cx, 0, lanes);                                       \
+    const ulong stored = (ulong)OctoStoredChannels(g);                                             \
+    const ulong channel = (ulong)OCTO_CHANNEL_OF(k);                                               \
+    for (int l = 0; l < (N); ++l) {                                                                \
+      if (!OctoRangeInert(words[(ulong)lanes[l] * stored + channel], channels, extreme, k)) {      \
+        return false;                                                                              \
+      }                                                                                            \
+    }                                                                                              \
+    return true;                                                                                   \
+  }
+OCTO_DEFINE_LANES_INERT_N(4)
+#if OCTO_RUN_LANES >= 8
+OCTO_DEFINE_LANES_INERT_N(8)
+#endif
+
 /* With channel transforms: N samples of a transformed run at once, every channel read from its
- * cached fast hit's brick (RayCast's ch_* state: bricks, wanted boxes and brick origins in the
- * band's level coordinates; level_down = 2^-level). Per lane the same expressions and tests as
- * the single sample's (OctoChannelPosition, the clamp to the level, the cached box): when any
- * lane of any channel leaves the volume box or its channel's box, nothing is taken (*taken 0)
- * and the single-sample path goes on. Otherwise as OctoRunStepN. */
+ * cached fast hit's brick (RayCast's ch_* state: bricks, their slots' cells, wanted boxes and
+ * brick origins in the band's level coordinates; level_down = 2^-level). Per lane the same
+ * expressions and tests as the single sample's (OctoChannelPosition, the clamp to the level, the
+ * cached box): when any lane of any channel leaves the volume box or its channel's box, nothing is
+ * taken (*taken 0) and the single-sample path goes on. With skipping, when every lane of every
+ * channel lies in an inert cell (OctoLanesInert), the N samples are skipped (*taken N, added to
+ * *skipped) instead of read: they could not change the ray. Otherwise as OctoRunStepN. */
 #define OCTO_DEFINE_TRANSFORM_STEP_N(N)                                                            \
   __attribute__((always_inline)) bool OctoTransformStep##N(                                        \
       OctoRenderFrame f, OctoTreeGeometry g, __global const OctoChannelParams* channels,           \
-      __global const float4* lut, __global const ushort* const* bricks, float##N arc,              \
-      float3 entry, float3 u, float level_down, float3 valid_hi, const float3* lo,                 \
-      const float3* hi, const float3* origin, OctoRatio ratio, float4* acc, float* extreme,        \
-      uint* samples, uint* taken) {                                                                \
+      __global const float4* lut, __global const ushort* const* bricks,                            \
+      __global const uint* const* cells, float##N arc, float3 entry, float3 u, float level_down,   \
+      float3 valid_hi, const float3* lo, const float3* hi, const float3* origin, OctoRatio ratio,  \
+      float4* acc, float* extreme, uint* samples, uint* skipped, uint* taken) {                    \
     (void)lut;                                                                                     \
     (void)ratio;                                                                                   \
     (void)acc;                                                                                     \
-    (void)extreme;                                                                                 \
     const float##N px = entry.x + u.x * arc;                                                       \
     const float##N py = entry.y + u.y * arc;                                                       \
     const float##N pz = entry.z + u.z * arc;                                                       \
-    float##N v[OCTO_STATE_CHANNELS];                                                               \
+    OctoTrilinear##N tri[OCTO_STATE_CHANNELS];                                                     \
+    bool inert = f.skip_empty != 0;                                                                \
     for (int k = 0; k < OCTO_ACTIVE_N; ++k) {                                                      \
       float##N rx;                                                                                 \
       float##N ry;                                                                                 \
@@ -407,9 +442,21 @@ OCTO_DEFINE_RUN_STEP_N(8)
                (ly < hi[k].y) & (lz < hi[k].z))) {                                                 \
         return false;                                                                              \
       }                                                                                            \
-      const OctoTrilinear##N tri = OctoTrilinearLocal##N(                                          \
-          g, lx + 0.5f - origin[k].x, ly + 0.5f - origin[k].y, lz + 0.5f - origin[k].z);           \
-      v[k] = OctoTrilinearRead##N(bricks[k], tri, OCTO_CHANNEL_OF(k));                             \
+      if (inert) {                                                                                 \
+        inert = OctoLanesInert##N(cells[k], g, lx - origin[k].x, ly - origin[k].y,                 \
+                                  lz - origin[k].z, channels, extreme, k);                         \
+      }                                                                                            \
+      tri[k] = OctoTrilinearLocal##N(g, lx + 0.5f - origin[k].x, ly + 0.5f - origin[k].y,          \
+                                     lz + 0.5f - origin[k].z);                                     \
+    }                                                                                              \
+    if (inert) {                                                                                   \
+      *taken = N;                                                                                  \
+      *skipped += (uint)(N) * (uint)OCTO_ACTIVE_N;                                                 \
+      return false;                                                                                \
+    }                                                                                              \
+    float##N v[OCTO_STATE_CHANNELS];                                                               \
+    for (int k = 0; k < OCTO_ACTIVE_N; ++k) {                                                      \
+      v[k] = OctoTrilinearRead##N(bricks[k], tri[k], OCTO_CHANNEL_OF(k));                          \
     }                                                                                              \
     OCTO_TAKE_SAMPLES(N, OCTO_ACTIVE_N, OCTO_STATE_CHANNELS)                                       \
     return false;                                                                                  \
@@ -628,7 +675,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
            * reads a voxel outside the node) is jumped over below while the hit stays cached;
            * samples in the shell are left to the cells, whose ranges cover their footprints. */
           hit_inert = f.skip_empty && fast &&
-                      OctoNodeInert(nodes, shared_hit.node, g, f, channels, extreme);
+                      OctoNodeInert(nodes, shared_hit.node, g, f, channels, extreme, 0,
+                                    OCTO_ACTIVE_N);
           /* Value ranges, other hits, and inert fast hits below the root (an inert ancestor
            * reaches further): jump over the coarsest inert node around p (before anything is
            * requested). A sample in an inert node's shell is taken; other hits are then not
@@ -638,8 +686,8 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             float3 inert_lo;
             float3 inert_hi;
             bool in_shell = false;
-            if (OctoInertBox(nodes, g, p, level, f, channels, extreme, &inert_lo, &inert_hi,
-                             &in_shell)) {
+            if (OctoInertBox(nodes, g, p, level, f, channels, extreme, 0, OCTO_ACTIVE_N,
+                             &inert_lo, &inert_hi, &in_shell)) {
               const uint target =
                   OctoFirstSegmentBeyond(entry, inv_u, entry_abs, inert_lo, inert_hi, band_start,
                                          band_end, inv_dt, band_n);
@@ -914,10 +962,13 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
       bool ch_in[OCTO_STATE_CHANNELS];
       bool ch_fresh[OCTO_STATE_CHANNELS];
       float3 ch_q[OCTO_STATE_CHANNELS];
+      float3 ch_p[OCTO_STATE_CHANNELS]; /* The transformed position before the clamp. */
       if (!OCTO_ALL_IDENTITY) {
+        bool any_fresh = false;
         for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
           ch_in[k] = OctoChannelPosition(&channels[k], p, f, &ch_q[k]);
           if (!ch_in[k]) continue;
+          ch_p[k] = ch_q[k];
           const float3 ql = clamp(ch_q[k] * ldexp(1.0f, -level), 0.5f, valid_hi);
           ch_q[k] = ql * ldexp(1.0f, level); /* OctoClampToLevel, exactly. */
           ch_fresh[k] = !(ch_level[k] == level && all(ql >= ch_lo[k]) && all(ql < ch_hi[k]));
@@ -931,6 +982,55 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
             ch_hi[k] = ch_lo[k] + size;
             ch_origin[k] = convert_float3(hit.index.xyz * OctoBrickSize(g));
             ch_level[k] = level;
+            any_fresh = true;
+          }
+        }
+        /* Empty space, each channel in its own space (when a channel enters a node): where
+         * every enabled channel's position lies in an inert node of its own (OctoInertBox for
+         * that channel alone), the ray jumps to the first midpoint beyond the nearest of their
+         * exits, each taken along the channel's transformed ray (an affine map of a ray is a
+         * ray). A channel outside the volume, or in an inert node's shell (tested again at the
+         * next sample), stops the jump. */
+        if (f.skip_empty && any_fresh) {
+          uint target = band_n;
+          for (int k = 0; k < OCTO_ACTIVE_N && target > j; ++k) {
+            float3 inert_lo;
+            float3 inert_hi;
+            bool in_shell = false;
+            if (!ch_in[k] || !OctoInertBox(nodes, g, ch_p[k], level, f, channels, extreme, k,
+                                           k + 1, &inert_lo, &inert_hi, &in_shell)) {
+              if (in_shell) ch_level[k] = -1;
+              target = 0u;
+              break;
+            }
+            float3 e = entry;
+            float3 w = u;
+            if (!channels[k].identity) {
+              e = OctoTransformPoint(channels[k].transform, entry);
+              w = OctoTransformDirection(channels[k].transform, u);
+            }
+            const float3 inv_w = 1.0f / w;
+            const float e_abs = fmax(fabs(e.x), fmax(fabs(e.y), fabs(e.z)));
+            target = min(target, OctoFirstSegmentBeyond(e, inv_w, e_abs, inert_lo, inert_hi,
+                                                        band_start, band_end, inv_dt, band_n));
+            /* Nor beyond where the channel leaves the volume: every skipped channel sample is
+             * one that would have been taken (no "outside: no sample" among them). */
+            if (!channels[k].identity) {
+              const float3 box = (float3)(f.volume[0], f.volume[1], f.volume[2]);
+              target = min(target, OctoFirstSegmentBeyond(e, inv_w, e_abs, (float3)(0.0f), box,
+                                                          band_start, band_end, inv_dt, band_n));
+            }
+          }
+          if (target > j) {
+            /* Skipped resident bricks still count as used (eviction order). */
+            for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
+              if (ch_fresh[k] && OctoNodeInBuffer(ch_hit[k].word0)) {
+                OctoMarkSlotCounted(slot_used, ch_hit[k].slot, frame, counters);
+              }
+            }
+            skipped += (target - j) * (uint)OCTO_ACTIVE_N;
+            i = band_base + target;
+            continue;
           }
         }
         /* Transformed runs: while every channel's hit is its wanted node, resident at the
@@ -959,8 +1059,11 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
         }
         if (run && run_end >= j + 4u) {
           /* The first use of a fast hit needs nothing of OctoResolveSource but the stamp. */
+          __global const uint* ch_cells[OCTO_STATE_CHANNELS];
           for (int k = 0; k < OCTO_ACTIVE_N; ++k) {
             if (ch_fresh[k]) OctoMarkSlotCounted(slot_used, ch_hit[k].slot, frame, counters);
+            ch_cells[k] =
+                cell_ranges + (ulong)ch_hit[k].slot * OctoCellWords(g) + OctoCellOffset(g);
           }
           const float level_down = ldexp(1.0f, -level);
           uint jj = j;
@@ -970,18 +1073,18 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
           for (; jj + 8u <= run_end && taken > 0u && !ended; jj += taken) {
             const float8 lanes = (float8)(0.0f, 1.0f, 2.0f, 3.0f, 4.0f, 5.0f, 6.0f, 7.0f);
             const float8 arc8 = (band_start + ((float)jj + lanes) * dt) + 0.5f * dt;
-            ended = OctoTransformStep8(f, g, channels, lut, ch_brick, arc8, entry, u, level_down,
-                                       valid_hi, ch_lo, ch_hi, ch_origin, band_ratio, &acc,
-                                       extreme, &samples, &taken);
+            ended = OctoTransformStep8(f, g, channels, lut, ch_brick, ch_cells, arc8, entry, u,
+                                       level_down, valid_hi, ch_lo, ch_hi, ch_origin, band_ratio,
+                                       &acc, extreme, &samples, &skipped, &taken);
           }
           taken = 1u;
 #endif
           for (; jj + 4u <= run_end && taken > 0u && !ended; jj += taken) {
             const float4 arc4 =
                 (band_start + ((float)jj + (float4)(0.0f, 1.0f, 2.0f, 3.0f)) * dt) + 0.5f * dt;
-            ended = OctoTransformStep4(f, g, channels, lut, ch_brick, arc4, entry, u, level_down,
-                                       valid_hi, ch_lo, ch_hi, ch_origin, band_ratio, &acc,
-                                       extreme, &samples, &taken);
+            ended = OctoTransformStep4(f, g, channels, lut, ch_brick, ch_cells, arc4, entry, u,
+                                       level_down, valid_hi, ch_lo, ch_hi, ch_origin, band_ratio,
+                                       &acc, extreme, &samples, &skipped, &taken);
           }
           if (ended) break;
           if (jj > j) {

@@ -16,6 +16,7 @@
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -712,14 +713,10 @@ void ExpectConvergedFullFramesEqual(Rig& rig, const Camera& camera, const Render
   EXPECT_GT(on_stats.samples_skipped, 0u) << what;
 }
 
-// Value-range skipping (issue 12): a LOSSLESS scene where every brick holds noise (no brickless
-// node, so the old leaf skipping never applies) — dim noise around bright blobs, two channels.
-// DVR windows / a LUT make the dim noise fully transparent, MIP passes through dim nodes after a
-// blob, MinIP through bright ones after the background: inert nodes are skipped. The images must
-// be bit-identical with skipping off (refinement and converged full frames), equal the CPU
-// reference at level 0, and the skipped-sample counter proves the skipping happened.
-TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
-  OCTO_REQUIRE_OPENCL_DEVICE();
+// Dim noise around bright blobs, two channels, every brick holding noise (no brickless node, so
+// the leaf skipping never applies), inside a black shell three voxels thick (every ray enters
+// through black, so MinIP reaches every node's minimum early).
+SceneSpec DimNoiseBlobsSpec() {
   SceneSpec spec;
   spec.size = {48, 40, 32};
   spec.brick = {8, 8, 8};
@@ -730,50 +727,85 @@ TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
     };
     const bool bright = c == 0 ? blob(12, 12, 10, 6) || blob(34, 28, 22, 7) : blob(30, 14, 16, 8);
     if (bright) return static_cast<uint16_t>(20000 + Hash(x, y, z, c) % 40000);
-    // Dim noise inside a black shell three voxels thick (every ray enters through black, so
-    // MinIP reaches every node's minimum early).
     const auto in_shell = [](int64_t v, int64_t n) { return v < 3 || v >= n - 3; };
     if (in_shell(x, 48) || in_shell(y, 40) || in_shell(z, 32)) return 0;
     const uint32_t h = Hash(x, y, z, c);
     return static_cast<uint16_t>(c == 0 ? h % 1000 : 100 + h % 500);
   };
-  auto rig = MakeRig(spec);
-  ASSERT_NE(rig, nullptr);
-  // Every node owns a brick: only value ranges can skip here.
-  ASSERT_EQ(rig->scene->tree->stats().homogeneous_nodes, 0u);
-  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
-    RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
-    if (mode == RenderMode::kDvr) {
-      // Channel 0: a window starting above the noise; channel 1: a LUT transparent below entry
-      // 20 (about 5000 stored).
-      params.channels[0].window = 30000;
-      params.channels[0].level = 1000 + 15000;
-      params.channels[0].opacity_scale = 0.2;
-      std::array<volume::Rgba, kLutEntries> lut;
-      for (int i = 0; i < kLutEntries; ++i) {
-        lut[i] = {static_cast<uint8_t>(i), 80, static_cast<uint8_t>(255 - i),
-                  static_cast<uint8_t>(i < 20 ? 0 : i / 4)};
-      }
-      params.channels[1].lut = lut;
+  return spec;
+}
+
+// Parameters under which DimNoiseBlobsSpec's dim noise cannot change a ray: DVR windows / a LUT
+// make it fully transparent, MIP passes through dim nodes after a blob, MinIP through bright ones
+// after the background.
+RenderParams DimNoiseBlobsParams(RenderMode mode) {
+  RenderParams params = DefaultRenderParams(2, volume::DataType::kUint16, mode);
+  if (mode == RenderMode::kDvr) {
+    // Channel 0: a window starting above the noise; channel 1: a LUT transparent below entry
+    // 20 (about 5000 stored).
+    params.channels[0].window = 30000;
+    params.channels[0].level = 1000 + 15000;
+    params.channels[0].opacity_scale = 0.2;
+    std::array<volume::Rgba, kLutEntries> lut;
+    for (int i = 0; i < kLutEntries; ++i) {
+      lut[i] = {static_cast<uint8_t>(i), 80, static_cast<uint8_t>(255 - i),
+                static_cast<uint8_t>(i < 20 ? 0 : i / 4)};
     }
+    params.channels[1].lut = lut;
+  }
+  return params;
+}
+
+// DimNoiseBlobsSpec's rig in DVR, MIP and MinIP, ortho and perspective, with DimNoiseBlobsParams
+// changed by `adjust`: refinement bit-identical with skipping off, converged full frames too,
+// the CPU reference's image at level 0, and the skipped-sample counter proves the skipping
+// happened (DVR and MinIP skip most of the noise; MIP only behind rays that already crossed a
+// blob of both channels' brightness).
+void ExpectDimNoiseBlobsSkippedLosslessly(Rig& rig,
+                                          const std::function<void(RenderParams&)>& adjust) {
+  for (RenderMode mode : {RenderMode::kDvr, RenderMode::kMip, RenderMode::kMinIp}) {
+    RenderParams params = DimNoiseBlobsParams(mode);
+    adjust(params);
     for (Projection p : {Projection::kOrthographic, Projection::kPerspective}) {
       const std::string what =
           std::string(RenderModeName(mode)) + " " + std::string(ProjectionName(p));
-      const Camera camera = Standard(*rig, StandardView::kIso, p, 48, 48);
+      const Camera camera = Standard(rig, StandardView::kIso, p, 48, 48);
       FrameStats with_stats;
-      const RenderImage a = RenderBothWays(*rig, camera, params, what, &with_stats);
-      // DVR and MinIP skip most of the noise; MIP only behind rays that already crossed a
-      // blob of both channels' brightness.
+      const RenderImage a = RenderBothWays(rig, camera, params, what, &with_stats);
       EXPECT_GT(with_stats.samples_skipped,
                 mode == RenderMode::kMip ? uint64_t{0} : with_stats.samples / 4)
           << what;
-      const ImageDiff d = CompareImages(a, Reference(*rig, camera, params));
+      const ImageDiff d = CompareImages(a, Reference(rig, camera, params));
       EXPECT_LE(d.max_abs, kTol) << what << ": " << Describe(d);
-
-      // Full frames, once everything they need is resident, are identical too.
-      ExpectConvergedFullFramesEqual(*rig, camera, params, a, what);
+      ExpectConvergedFullFramesEqual(rig, camera, params, a, what);
     }
   }
+}
+
+// Value-range skipping (issue 12) on DimNoiseBlobsSpec (LOSSLESS: every brick holds noise): inert
+// nodes are skipped without changing the image.
+TEST(VolumeRendererTest, ValueRangeSkippingIsLosslessAndTriggers) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(DimNoiseBlobsSpec());
+  ASSERT_NE(rig, nullptr);
+  // Every node owns a brick: only value ranges can skip here.
+  ASSERT_EQ(rig->scene->tree->stats().homogeneous_nodes, 0u);
+  ExpectDimNoiseBlobsSkippedLosslessly(*rig, [](RenderParams&) {});
+}
+
+// The same with channel transforms (each channel skips in its own space: nodes per channel,
+// cells per step of a transformed run). Channel 1's map includes a scale, so its transformed ray
+// is not parallel to channel 0's; near the volume's faces a channel leaves the box (no sample
+// there, and no skip across it: every skipped sample is one that would have been taken).
+TEST(VolumeRendererTest, TransformedChannelsSkipInertSpaceLosslessly) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = MakeRig(DimNoiseBlobsSpec());
+  ASSERT_NE(rig, nullptr);
+  ExpectDimNoiseBlobsSkippedLosslessly(*rig, [](RenderParams& params) {
+    params.channels[0].transform = Mat4::Translation({0.7, -0.4, 0.9});
+    params.channels[1].transform =
+        Mat4::Translation({-1.3, 0.6, 0.4}) * Mat4::Scale({1.02, 0.98, 1});
+  });
 }
 
 // 64^3 voxels, two channels, 32^3 bricks that each hold a bright noisy blob of `radius` (<= 7)
