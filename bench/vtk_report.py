@@ -68,7 +68,7 @@ def write_svg(path, panels):
         return
     x_lo, x_hi = nice_bounds(min(p[1] for p in points) * 0.9, max(p[1] for p in points) * 1.1)
     y_lo = 5 * math.floor(min(p[2] for p in points) / 5)
-    y_hi = 5 * math.ceil(max(p[2] for p in points) / 5)
+    y_hi = max(5 * math.ceil(max(p[2] for p in points) / 5), y_lo + 5)  # Never an empty range.
     width, height, pad, top, bottom = 480, 460, 60, 40, 50
     colours = {1.0: "#36c", 2.0: "#2a2"}
     svg = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width * len(panels)}" '

@@ -164,6 +164,7 @@ Result<RenderImage> DenseKernel::Render(const Camera& camera, const RenderParams
     stats->rays = words[OCTO_COUNTER_FINISHED];
     stats->ms_kernel = ms_kernel;
     stats->ms_total = MsSince(start);
+    stats->packets = packets;
   }
   return image;
 }

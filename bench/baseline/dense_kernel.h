@@ -45,6 +45,7 @@ struct DenseKernelStats {
   uint32_t rays = 0;     // Pixels finished.
   double ms_kernel = 0;  // Enqueue to Finish of the one kernel launch.
   double ms_total = 0;   // Render call: arguments, kernel, image read back.
+  bool packets = false;  // Eight rays per work item (DensePacketRayCast) were cast.
 };
 
 class DenseKernel {

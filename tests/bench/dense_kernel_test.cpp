@@ -223,6 +223,9 @@ TEST(DenseKernelTest, PacketsOfRaysTakeTheSameSamplesAsSingleRays) {
       const RenderImage single = Dense(*dense, camera, params, &single_stats);
       EXPECT_EQ(packed_stats.samples, single_stats.samples) << RenderModeName(mode);
       EXPECT_EQ(packed_stats.rays, 30u * 25u);
+      // The two forms really ran (the stats say which, and bench render reports it).
+      EXPECT_TRUE(packed_stats.packets);
+      EXPECT_FALSE(single_stats.packets);
       EXPECT_LE(CompareImages(packed, single).max_abs, 1e-5) << RenderModeName(mode);
       if (mode == RenderMode::kDvr) {
         // Early termination happened: fewer samples than MIP's full rays.
