@@ -12,8 +12,9 @@
  * enabled channel has a transform, 0 otherwise).
  *
  * Per ray: clip [t_min, inf) to the box [0, n] and the planes (as ClipRayToVolume); the level of
- * detail from the pixel footprint (orthographic: one level; perspective: bands of constant level,
- * split where the footprint reaches a power of two); each band walked in segments of
+ * detail from the pixel footprint in the ray's LOD spacing (OctoLodSpacing; orthographic: one
+ * level; perspective: bands of constant level, split where the footprint reaches a power of two);
+ * each band walked in segments of
  * step * 2^level voxels (arc length in voxel space) whose midpoints are band_entry + (i + 0.5) dt
  * (the last segment shortened to the band's end), never accumulated. Per sample and enabled
  * channel: its transformed position (outside the box: no sample), clamped into the valid extent
@@ -66,6 +67,22 @@ __constant int kOctoChannels[OCTO_ACTIVE] = {OCTO_CHANNELS};
 /* Full frame: a resident ancestor more than this many levels above the wanted node is too coarse;
  * the wanted node's average is used instead. */
 #define OCTO_MAX_FALLBACK_LEVELS 2
+
+/* What a ray's footprint is measured in, in finest spacings (>= 1): the largest projection of a
+ * voxel's axis onto the image plane, spacing_a * sqrt(1 - w_a^2) for the ray's unit physical
+ * direction w (w_a = d_a * spacing_a; d in voxels per µm). A level is fine enough where none of
+ * its voxels' axes looks larger than a pixel, so a coarse z seen from the side keeps finer levels
+ * than z seen end on. Exactly 1 with isotropic voxels (each term is at most 1). */
+float OctoLodSpacing(OctoRenderFrame f, float3 d) {
+  if (f.lod_spacing[0] == 1.0f && f.lod_spacing[1] == 1.0f && f.lod_spacing[2] == 1.0f) {
+    return 1.0f; /* Isotropic: what the rest gives, without its work. */
+  }
+  const float reference = 1.0f / f.inv_reference;
+  const float3 rel = (float3)(f.lod_spacing[0], f.lod_spacing[1], f.lod_spacing[2]);
+  const float3 w = d * rel * reference;
+  const float3 seen = rel * sqrt(fmax(1.0f - w * w, 0.0f));
+  return fmax(1.0f, fmax(seen.x, fmax(seen.y, seen.z)));
+}
 
 /* floor(log2(footprint)) clamped to the tree's levels; ilogb is exact at powers of two. */
 int OctoLevelOf(float footprint, OctoTreeGeometry g) {
@@ -554,14 +571,16 @@ __kernel void RayCast(__global const uint* nodes, OCTO_BRICK_BUFFER_PARAMS, Octo
     const float len = (t1 - t0) * vpu;
     const float rounding = OCTO_SLIVER_ULPS * FLT_EPSILON * (fabs(t0) + fabs(t1)) * vpu;
     const bool perspective = f.projection == OCTO_PROJECTION_PERSPECTIVE;
-    /* Perspective footprint per µm of t along the ray: footprint(t) = fp_per_t * t. */
-    const float fp_per_t = f.lod_scale * cos_forward;
+    /* Footprints in this ray's LOD spacings; perspective: per µm of t along the ray,
+     * footprint(t) = fp_per_t * t. */
+    const float lod_scale = f.lod_scale / OctoLodSpacing(f, d);
+    const float fp_per_t = lod_scale * cos_forward;
     const float entry_abs = fmax(fabs(entry.x), fmax(fabs(entry.y), fabs(entry.z)));
 
     /* The screen decides the level; it is constant along a band of the ray (the whole ray when
      * orthographic), and a band of level L is sampled every step * 2^L voxels (the level's voxel
      * size): a finer step would only re-read the same interpolated data. */
-    int level = OctoLevelOf(perspective ? fp_per_t * t0 : f.lod_scale, g);
+    int level = OctoLevelOf(perspective ? fp_per_t * t0 : lod_scale, g);
     float band_start = 0.0f; /* Arc where the current band begins. */
     uint band_base = 0u;     /* Global index of its first sample. */
     float band_end = len;

@@ -17,6 +17,8 @@
  *   background: premultiplied rgb, alpha.
  *   volume: level-0 size per axis (float); step in voxels.
  *   inv_reference: 1 / the smallest spacing (µm), for DVR opacity correction.
+ *   lod_spacing: each axis's spacing / the smallest (1 exactly on the finest axes), for the
+ *     level of detail of anisotropic voxels (raycast.cl: OctoLodSpacing).
  *   flags: all_identity (no enabled channel has a transform: one traversal per sample, empty
  *     space skipping allowed), skip_empty.
  * OctoChannelParams (one per ENABLED channel, in channel order):
@@ -79,7 +81,9 @@ typedef struct OctoRenderFrame {
   int all_identity;
   int skip_empty;
   float inv_reference;
+  float lod_spacing[3];
   int pad0;
+  int pad1;
 } OctoRenderFrame;
 
 typedef struct OctoChannelParams {

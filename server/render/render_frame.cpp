@@ -103,6 +103,7 @@ PackedFrame PackRenderFrame(const Camera& camera, const RenderParams& params, do
   // Footprint in finest voxels (ortho) or per µm of distance (perspective), times 2^bias.
   f.lod_scale = static_cast<float>(pixel_scale * std::exp2(lod_bias) / reference_um);
   f.inv_reference = static_cast<float>(1 / reference_um);
+  for (int a = 0; a < 3; ++a) f.lod_spacing[a] = static_cast<float>(spacing[a] / reference_um);
 
   // Physical plane n . p <= d is (n * s) . p_vox <= d in voxel space.
   f.clip_count = static_cast<int>(params.clip_planes.size());

@@ -141,9 +141,11 @@ SliceFrame ResolveSliceFrame(const SliceView& view, const Box3& bounds) {
   return f;
 }
 
-int SliceLevel(double um_per_pixel, const Vec3& spacing_um, double lod_bias, int root_level) {
-  const double finest = std::min({spacing_um.x, spacing_um.y, spacing_um.z});
-  const double level = std::floor(std::log2(um_per_pixel / finest) + lod_bias);
+int SliceLevel(double um_per_pixel, const Vec3& spacing_um, int axis, double lod_bias,
+               int root_level) {
+  const auto [ua, va] = SliceInPlaneAxes(axis);
+  const double in_plane = std::max(spacing_um[ua], spacing_um[va]);
+  const double level = std::floor(std::log2(um_per_pixel / in_plane) + lod_bias);
   // Clamp in double first: a huge or tiny footprint must not overflow the int conversion.
   return static_cast<int>(std::clamp(level, 0.0, static_cast<double>(root_level)));
 }
@@ -208,8 +210,8 @@ Result<RenderImage> SliceRenderer::Render(const SliceView& view, const RenderPar
   // Plane, box and level, resolved once for all frames.
   const Box3 box = bounds();
   const SliceFrame frame_geometry = ResolveSliceFrame(view, box);
-  const int level =
-      SliceLevel(frame_geometry.um_per_pixel, spacing_, options.lod_bias, geometry.root_level());
+  const int level = SliceLevel(frame_geometry.um_per_pixel, spacing_, view.axis, options.lod_bias,
+                               geometry.root_level());
   SliceSetup setup{};
   for (int a = 0; a < 3; ++a) {
     setup.origin[a] = static_cast<float>(frame_geometry.origin[a]);

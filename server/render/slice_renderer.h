@@ -14,8 +14,10 @@
 // by default centre = the volume box's centre and um_per_pixel = the smallest value that fits the
 // box's cross-section into the image (max(extent_u / width, extent_v / height)).
 //
-// Level of detail: footprint = um_per_pixel / (smallest spacing), level = clamp(floor(log2(
-// footprint) + lod_bias), 0, root level) (SliceLevel), one level for the whole slice.
+// Level of detail: footprint = um_per_pixel / (the larger spacing of the two in-plane axes), level
+// = clamp(floor(log2(footprint) + lod_bias), 0, root level) (SliceLevel), one level for the whole
+// slice: the finest level none of whose voxels looks larger than a pixel in the plane (the ray
+// caster's rule, volume_renderer.h, for rays along the normal).
 //
 // Pixel value: a pixel centre outside the volume box (faces inclusive; also every pixel when the
 // plane misses the box) is params.background. Inside, each ENABLED channel c (disabled ones are
@@ -85,8 +87,10 @@ struct SliceFrame {
 // Resolves the defaults of `view` against the volume box. REQUIRES: view valid (see SliceView).
 SliceFrame ResolveSliceFrame(const SliceView& view, const Box3& bounds);
 
-// The level of detail of a slice (see the file comment). REQUIRES: um_per_pixel > 0, spacing > 0.
-int SliceLevel(double um_per_pixel, const Vec3& spacing_um, double lod_bias, int root_level);
+// The level of detail of a slice normal to `axis` (see the file comment). REQUIRES: um_per_pixel
+// > 0, spacing > 0, axis in 0..2.
+int SliceLevel(double um_per_pixel, const Vec3& spacing_um, int axis, double lod_bias,
+               int root_level);
 
 struct SliceOptions {
   // Added to the level: +1 renders at half the screen's resolution, -1 at twice it.

@@ -21,7 +21,7 @@ namespace octoscope::render {
 // The frame and channel structs are passed to the kernel byte for byte: only 32-bit fields, no
 // padding, the offsets OpenCL C computes for the same declarations.
 static_assert(sizeof(float) == 4 && sizeof(int) == 4);
-static_assert(sizeof(OctoRenderFrame) == 44 * 4);
+static_assert(sizeof(OctoRenderFrame) == 48 * 4);
 static_assert(offsetof(OctoRenderFrame, origin) == 0);
 static_assert(offsetof(OctoRenderFrame, projection) == 12);
 static_assert(offsetof(OctoRenderFrame, forward) == 16);
@@ -37,6 +37,7 @@ static_assert(offsetof(OctoRenderFrame, step) == 140);
 static_assert(offsetof(OctoRenderFrame, clip_count) == 144);
 static_assert(offsetof(OctoRenderFrame, active_channels) == 156);
 static_assert(offsetof(OctoRenderFrame, inv_reference) == 168);
+static_assert(offsetof(OctoRenderFrame, lod_spacing) == 172);
 static_assert(sizeof(OctoChannelParams) == 26 * 4);
 static_assert(offsetof(OctoChannelParams, color) == 48);
 static_assert(offsetof(OctoChannelParams, window_lo) == 64);

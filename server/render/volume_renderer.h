@@ -8,17 +8,20 @@
 // (i + 0.5) dt, never accumulated; coarser levels: see "Sampling distance"), and each ENABLED
 // channel is read at its transformed position. The level of detail is chosen PER SAMPLE: the pixel
 // footprint at the sample's distance (constant for orthographic cameras) in level-0 voxels of the
-// finest spacing, level = clamp(floor(log2(footprint) + lod_bias), 0, root level), so the screen's
-// resolution decides and nothing finer is fetched. Empty space: a ray skips the coarsest node
-// around it whose subtree's per-channel value range (in the node buffer) maps to zero opacity in
-// every channel (DVR) or cannot raise any channel's running maximum (MIP; lower the minimum for
-// MinIP), from its box shrunk by half a voxel of the node's level to its exit; inert cells of
-// resident bricks (cell ranges); and a sample in a brickless leaf node (homogeneous or never
-// written) whose averages cannot contribute skips to the leaf's exit. With channel transforms each
-// channel is tested in its own space (nodes per channel, cells per 8- or 4-sample step). Images are
-// identical with skipping off once the bricks are resident (docs/rendering.md, "Empty-space
-// skipping"); FrameStats::samples_skipped counts the jumps. Programs are specialised per frame's
-// channel variant (enabled channels, transforms) at build time and cached.
+// largest spacing the screen shows along the ray (each axis's spacing times the sine of its angle
+// with the ray, at least the finest spacing: the finest spacing itself with isotropic voxels),
+// level = clamp(floor(log2(footprint) + lod_bias), 0, root level), so the screen's resolution
+// decides, nothing finer is fetched, and no voxel axis is shown coarser than a pixel. Empty space:
+// a ray skips the coarsest node around it whose subtree's per-channel value range (in the node
+// buffer) maps to zero opacity in every channel (DVR) or cannot raise any channel's running maximum
+// (MIP; lower the minimum for MinIP), from its box shrunk by half a voxel of the node's level to
+// its exit; inert cells of resident bricks (cell ranges); and a sample in a brickless leaf node
+// (homogeneous or never written) whose averages cannot contribute skips to the leaf's exit. With
+// channel transforms each channel is tested in its own space (nodes per channel, cells per 8- or
+// 4-sample step). Images are identical with skipping off once the bricks are resident
+// (docs/rendering.md, "Empty-space skipping"); FrameStats::samples_skipped counts the jumps.
+// Programs are specialised per frame's channel variant (enabled channels, transforms) at build time
+// and cached.
 //
 // Modes:
 //  * Full frame: a sample whose wanted node (the level the screen needs) is not resident uses the

@@ -269,16 +269,63 @@ TEST(SliceRendererTest, ZoomedOutUsesCoarserLevel) {
   EXPECT_LE(testing::CompareImages(*biased_img, coarse_ref).max_abs, 1e-3);
 }
 
-// SliceLevel's formula, independently of the renderer.
+// Anisotropic voxels (1 x 1 x 4 µm) at 2 µm per pixel: a z slice shows x and y, so it reads
+// level 1; an x slice shows y and z, and level 1's 8 µm z would be coarser than its pixels, so it
+// reads level 0 and equals the full-resolution reference (the finest spacing alone would have
+// taken level 1 for both).
+TEST(SliceRendererTest, AnisotropicSlicesTakeTheLevelTheirPlaneShows) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  SceneSpec spec;
+  spec.size = {32, 32, 16};
+  spec.spacing = {1, 1, 4};
+  spec.brick = {8, 8, 8};
+  spec.value = [](int, int64_t x, int64_t y, int64_t z) {
+    return static_cast<uint16_t>((x * 7919 + y * 104729 + z * 1299709) % 60000);
+  };
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  SliceView side;
+  side.axis = 0;
+  side.position_um = 13.3;
+  side.width = 16;   // y: 32 µm.
+  side.height = 32;  // z: 64 µm.
+  side.um_per_pixel = 2;
+  SliceView top = side;
+  top.axis = 2;
+  top.position_um = 29.0;
+  top.width = top.height = 16;
+  auto rig = MakeSlicer(spec);
+  ASSERT_NE(rig, nullptr);
+  SliceStats side_stats;
+  auto side_img = rig->renderer->Render(side, params, Converge(), &side_stats);
+  ASSERT_TRUE(side_img.ok()) << side_img.status().ToString();
+  SliceStats top_stats;
+  auto top_img = rig->renderer->Render(top, params, Converge(), &top_stats);
+  ASSERT_TRUE(top_img.ok()) << top_img.status().ToString();
+  EXPECT_EQ(side_stats.level, 0);
+  EXPECT_EQ(top_stats.level, 1);
+  const RenderImage side_ref = ExpectedSlice(*rig->reference, params, 0, 13.3, 16, 32, 2, {16, 32});
+  EXPECT_LE(testing::CompareImages(*side_img, side_ref).max_abs, 1e-3);
+}
+
+// SliceLevel's formula, independently of the renderer: the footprint in the larger in-plane
+// spacing (the plane of axis a shows the other two axes).
 TEST(SliceRendererTest, LevelFormula) {
-  EXPECT_EQ(SliceLevel(1, {1, 1, 1}, 0, 5), 0);
-  EXPECT_EQ(SliceLevel(1.99, {1, 1, 1}, 0, 5), 0);
-  EXPECT_EQ(SliceLevel(2, {1, 1, 1}, 0, 5), 1);
-  EXPECT_EQ(SliceLevel(8, {2, 1, 4}, 0, 5), 3);    // Smallest spacing counts.
-  EXPECT_EQ(SliceLevel(8, {1, 1, 1}, 0.5, 5), 3);  // floor(3.5).
-  EXPECT_EQ(SliceLevel(1000, {1, 1, 1}, 0, 4), 4);
-  EXPECT_EQ(SliceLevel(0.01, {1, 1, 1}, 0, 4), 0);
-  EXPECT_EQ(SliceLevel(4, {1, 1, 1}, -1, 4), 1);
+  EXPECT_EQ(SliceLevel(1, {1, 1, 1}, 2, 0, 5), 0);
+  EXPECT_EQ(SliceLevel(1.99, {1, 1, 1}, 2, 0, 5), 0);
+  EXPECT_EQ(SliceLevel(2, {1, 1, 1}, 2, 0, 5), 1);
+  EXPECT_EQ(SliceLevel(8, {1, 1, 1}, 0, 0.5, 5), 3);  // floor(3.5).
+  EXPECT_EQ(SliceLevel(1000, {1, 1, 1}, 1, 0, 4), 4);
+  EXPECT_EQ(SliceLevel(0.01, {1, 1, 1}, 2, 0, 4), 0);
+  EXPECT_EQ(SliceLevel(4, {1, 1, 1}, 2, -1, 4), 1);
+  // Anisotropic voxels {2, 1, 4}: z slices show x (2) and y (1), x slices y (1) and z (4), y slices
+  // x (2) and z (4). The finest spacing (1) alone would give level 3 in every plane.
+  EXPECT_EQ(SliceLevel(8, {2, 1, 4}, 2, 0, 5), 2);
+  EXPECT_EQ(SliceLevel(8, {2, 1, 4}, 0, 0, 5), 1);
+  EXPECT_EQ(SliceLevel(8, {2, 1, 4}, 1, 0, 5), 1);
+  EXPECT_EQ(SliceLevel(7.99, {2, 1, 4}, 2, 0, 5), 1);
+  // The normal's spacing does not count: z slices of {1, 1, 0.25} at 1 µm per pixel stay at
+  // level 0 (the finest spacing would give level 2).
+  EXPECT_EQ(SliceLevel(1, {1, 1, 0.25}, 2, 0, 5), 0);
 }
 
 // A disabled channel is never sampled and leaves the other channels' colours unchanged; a

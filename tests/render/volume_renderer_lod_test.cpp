@@ -33,6 +33,7 @@ using ::octoscope::render::testing::MakeRig;
 using ::octoscope::render::testing::Reference;
 using ::octoscope::render::testing::Refine;
 using ::octoscope::render::testing::RenderScene;
+using ::octoscope::render::testing::Rig;
 using ::octoscope::render::testing::SceneSpec;
 using ::octoscope::render::testing::Standard;
 
@@ -128,6 +129,102 @@ TEST(VolumeRendererLodTest, PerspectiveBandsSampleEachLevelAtItsVoxelSize) {
     }
   }
   // The oracle itself: bias 0 step 1 is 63 level-0 segments (40..102.6) + 33 level-1 ones.
+  EXPECT_EQ(ExpectedBandSamples(k, 40, 168, 1, root), 96u);
+}
+
+// HashSpec(size, bricks of 8^3) with voxels of `spacing` µm, on the device.
+std::unique_ptr<Rig> AnisotropicRig(std::array<int64_t, 3> size, Vec3 spacing) {
+  SceneSpec spec = HashSpec(size, {8, 8, 8});
+  spec.spacing = spacing;
+  return MakeRig(spec);
+}
+
+// Anisotropic voxels: the footprint is measured in the largest spacing the screen shows (the
+// voxel's axes projected onto the image plane), not in the finest one. Voxels of 1 x 1 x 4 µm,
+// 24^3 of them (root level 2), orthographic, 1 µm per pixel. Seen along z the screen shows x and
+// y (1 µm): levels floor(bias) as with isotropic voxels. Seen along x it shows y and z (4 µm):
+// the footprint is 1 / 4, so level 0 up to bias 2 (the finest spacing would give floor(bias)).
+// Each ray crosses 24 voxels: ceil(24 / 2^L) samples at level L.
+TEST(VolumeRendererLodTest, AnisotropicVoxelsTakeTheLevelTheScreenShows) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = AnisotropicRig({24, 24, 24}, {1, 1, 4});
+  ASSERT_NE(rig, nullptr);
+  ASSERT_EQ(rig->device->geometry().root_level(), 2);
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  struct Case {
+    const char* name;
+    Vec3 position, target, up;
+    int width, height;
+    double ortho_height;
+    double bias;
+    uint64_t samples_per_ray;
+  };
+  const Case cases[] = {
+      {"z, bias 0.5", {12, 12, -100}, {12, 12, 48}, {0, -1, 0}, 24, 24, 24, 0.5, 24},
+      {"z, bias 1.5", {12, 12, -100}, {12, 12, 48}, {0, -1, 0}, 24, 24, 24, 1.5, 12},
+      {"z, bias 2.5", {12, 12, -100}, {12, 12, 48}, {0, -1, 0}, 24, 24, 24, 2.5, 6},
+      {"x, bias 0.5", {-100, 12, 48}, {12, 12, 48}, {0, 0, -1}, 24, 96, 96, 0.5, 24},
+      {"x, bias 1.5", {-100, 12, 48}, {12, 12, 48}, {0, 0, -1}, 24, 96, 96, 1.5, 24},
+      {"x, bias 2.5", {-100, 12, 48}, {12, 12, 48}, {0, 0, -1}, 24, 96, 96, 2.5, 24},
+      {"x, bias 3.5", {-100, 12, 48}, {12, 12, 48}, {0, 0, -1}, 24, 96, 96, 3.5, 12},
+  };
+  for (const Case& c : cases) {
+    Result<Camera> camera = Camera::LookAt(Projection::kOrthographic, c.position, c.target, c.up,
+                                           c.width, c.height, 30, c.ortho_height);
+    ASSERT_TRUE(camera.ok()) << camera.status().ToString();
+    FrameStats stats;
+    Gpu(*rig, *camera, params, NoSkip(Refine(), c.bias), &stats);
+    EXPECT_TRUE(stats.final) << c.name;
+    EXPECT_EQ(stats.samples, uint64_t(c.width) * c.height * c.samples_per_ray) << c.name;
+  }
+}
+
+// What that buys: seen from the side at 2 µm per pixel, voxels of 1 x 1 x 4 µm keep level 0 (the
+// finest spacing would take level 1, whose 8 µm z averages away the noise a pixel shows), so
+// full frames match the full-resolution reference as level 0 does.
+TEST(VolumeRendererLodTest, AnisotropicVoxelsSeenFromTheSideKeepTheirDetail) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = AnisotropicRig({24, 24, 24}, {1, 1, 4});
+  ASSERT_NE(rig, nullptr);
+  Result<Camera> camera = Camera::LookAt(Projection::kOrthographic, {-100, 12, 48}, {12, 12, 48},
+                                         {0, 0, -1}, 12, 48, 30, 96);
+  ASSERT_TRUE(camera.ok()) << camera.status().ToString();
+  for (RenderMode mode : {RenderMode::kMip, RenderMode::kDvr}) {
+    const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, mode);
+    FrameStats stats;
+    FrameOptions options = NoSkip(Refine(), 0);
+    const RenderImage image = Gpu(*rig, *camera, params, options, &stats);
+    EXPECT_TRUE(stats.final);
+    if (mode == RenderMode::kMip) {
+      EXPECT_EQ(stats.samples, 12u * 48 * 24);
+    }
+    const ImageDiff d = CompareImages(image, Reference(*rig, *camera, params));
+    EXPECT_LE(d.max_abs, kTol) << Describe(d);
+  }
+}
+
+// Perspective: the same rule per ray. Voxels of 4 x 4 x 1 µm seen along z (the screen shows x and
+// y, 4 µm): the footprint per µm of distance is a quarter of the isotropic test's above, so its
+// bands are those of bias - 2.
+TEST(VolumeRendererLodTest, AnisotropicPerspectiveBandsUseTheSpacingTheScreenShows) {
+  OCTO_REQUIRE_OPENCL_DEVICE();
+  auto rig = AnisotropicRig({16, 16, 128}, {4, 4, 1});
+  ASSERT_NE(rig, nullptr);
+  const int root = rig->device->geometry().root_level();
+  ASSERT_EQ(root, 4);
+  const double k = 0.0195;
+  const double fov = 2 * std::atan(k / 2) * 180 / std::numbers::pi;
+  Result<Camera> camera = Camera::LookAt(Projection::kPerspective, {33, 33, -40}, {33, 33, 64},
+                                         {0, 1, 0}, 1, 1, fov, 1);
+  ASSERT_TRUE(camera.ok()) << camera.status().ToString();
+  const RenderParams params = DefaultRenderParams(1, volume::DataType::kUint16, RenderMode::kMip);
+  for (double bias : {0.0, 2.0, 3.0, 4.0}) {
+    const uint64_t expected = ExpectedBandSamples(k * std::exp2(bias) / 4, 40, 168, 1, root);
+    FrameStats stats;
+    Gpu(*rig, *camera, params, NoSkip(Refine(), bias), &stats);
+    EXPECT_EQ(stats.samples, expected) << "bias " << bias;
+  }
+  // Bias 2 is the isotropic test's bias 0.
   EXPECT_EQ(ExpectedBandSamples(k, 40, 168, 1, root), 96u);
 }
 
