@@ -12,8 +12,9 @@
 //   cold    the first full frame (averages and whatever the wanted levels' ancestors give),
 //   steady  the first full frame that requests nothing more (the frame seen while interacting),
 //   interactive  (lod_bias 0 settings) the same renderer after 10 more full frames with a 100 ms
-//           kernel-time target (FrameOptions::target_frame_ms): the bias it settled at, its speed
-//           and error,
+//           kernel-time target (FrameOptions::target_frame_ms) and the server's interactive level
+//           of detail (FrameOptions::lod_view_spacing off): the bias it settled at, its speed and
+//           error,
 //   refined a fresh device octree refined to completion (total time of all passes).
 // Sweep: every view and mode at the first size with lod_bias 0, step 1, the large brick buffer;
 // then, for the iso view, one setting changed at a time: lod_bias 1 and 2, step 0.5 and 2, the
@@ -481,10 +482,12 @@ Status MeasureSetting(const Bench& b, const Setting& s, std::vector<RenderBenchR
     steady.passes = frames;
     FillError(steady, image, reference);
     rows->push_back(steady);
-    // Interaction: the same view with the frame-time target; the bias settles where frames take
-    // about the target (lod_bias column: the bias the last frame ran at).
+    // Interaction: the same view with the frame-time target and the server's interactive level
+    // of detail (footprints in the finest spacing); the bias settles where frames take about the
+    // target (lod_bias column: the bias the last frame ran at).
     if (s.lod_bias == 0) {
       options.target_frame_ms = kInteractiveTargetMs;
+      options.lod_view_spacing = false;
       options.view = 1;
       for (int i = 0; i < kInteractiveFrames; ++i) {
         stats = {};

@@ -126,6 +126,8 @@ Result<FrameInputs> MakeFrameInputs(const ComputeContext& context, const Camera&
                                              options.skip_empty_space, {n[0], n[1], n[2]}, spacing);
   FrameInputs in;
   in.frame = packed.frame;
+  // Footprints in the finest spacing: the kernel's LOD spacing is then 1 on every ray.
+  if (!options.lod_view_spacing) std::fill_n(in.frame.lod_spacing, 3, 1.0f);
   in.active = packed.frame.active_channels;
   in.variant = VariantDefines(geometry, packed);
   const std::vector<OctoChannelParams>& channels = packed.channels;

@@ -117,6 +117,12 @@ struct FrameOptions {
   // frames get coarser (an extra fractional lod bias, see the file comment); when they are
   // much faster, finer again, down to the caller's lod_bias.
   double target_frame_ms = 0;
+  // The level of detail measures footprints in the largest spacing the screen shows along each
+  // ray, so no voxel axis looks coarser than a pixel (see the file comment). false: in the finest
+  // spacing, as if the voxels were isotropic: with anisotropic voxels seen from the side, the
+  // coarse axis then shows up to their ratio coarser, at a fraction of the cost (the server's
+  // interactive frames, which trade detail for time; their final frames keep the default).
+  bool lod_view_spacing = true;
 };
 
 struct FrameStats {

@@ -929,6 +929,10 @@ Result<render::FrameRequest> ViewSession::RequestLocked(ViewId view, protocol::P
   render::FrameOptions options;
   options.mode = order.refine ? render::FrameMode::kRefine : render::FrameMode::kFullFrame;
   options.lod_bias = lod_bias;
+  // While the user moves the view, anisotropic voxels may show their coarse axis coarser than a
+  // pixel (much cheaper); the refinement that follows shows every axis at the screen's
+  // resolution.
+  options.lod_view_spacing = order.refine;
   // Interactive frames shrink first (FramePolicy); once at the smallest scale, the renderer
   // coarsens the level of detail to hold the frame time.
   if (!order.refine && policy.scale() <= context_.frame_policy.min_scale) {

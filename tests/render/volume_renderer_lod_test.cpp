@@ -177,6 +177,20 @@ TEST(VolumeRendererLodTest, AnisotropicVoxelsTakeTheLevelTheScreenShows) {
     EXPECT_TRUE(stats.final) << c.name;
     EXPECT_EQ(stats.samples, uint64_t(c.width) * c.height * c.samples_per_ray) << c.name;
   }
+  // FrameOptions::lod_view_spacing off (the server's interactive frames): the finest spacing
+  // from every side, levels floor(bias) seen along x too.
+  Result<Camera> side = Camera::LookAt(Projection::kOrthographic, {-100, 12, 48}, {12, 12, 48},
+                                       {0, 0, -1}, 24, 96, 30, 96);
+  ASSERT_TRUE(side.ok()) << side.status().ToString();
+  const uint64_t finest_rule[3] = {24, 12, 6};
+  for (int level = 0; level < 3; ++level) {
+    FrameOptions options = NoSkip(Refine(), level + 0.5);
+    options.lod_view_spacing = false;
+    FrameStats stats;
+    Gpu(*rig, *side, params, options, &stats);
+    EXPECT_TRUE(stats.final);
+    EXPECT_EQ(stats.samples, 24u * 96 * finest_rule[level]) << "level " << level;
+  }
 }
 
 // What that buys: seen from the side at 2 µm per pixel, voxels of 1 x 1 x 4 µm keep level 0 (the
