@@ -164,8 +164,8 @@ TEST(BenchCommandTest, QuickRunWritesTableSvgAndFiniteJson) {
 // --spacing applies to the demo too (the serve demo's anisotropic voxels: oblique rays take DVR's
 // general opacity correction) and is named in the report; the octree renderer and the plain
 // dense kernel still give the same images at level 0, every headline finite. (Refined rows at
-// lod_bias 0 are coarser than the reference here: 0.5 µm voxels make each pixel's footprint two
-// voxels wide, so the screen asks for level 1.)
+// lod_bias 0 may be coarser than the reference here: where a view's pixels are wider than the
+// spacing it shows, the screen asks for level 1.)
 TEST(BenchCommandTest, SpacingAppliesToTheDemo) {
   const fs::path dir = testing::MakeTempDir("bench-spacing");
   const RunResult run = RunOctoscope(

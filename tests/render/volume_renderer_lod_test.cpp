@@ -143,7 +143,7 @@ std::unique_ptr<Rig> AnisotropicRig(std::array<int64_t, 3> size, Vec3 spacing) {
 // voxel's axes projected onto the image plane), not in the finest one. Voxels of 1 x 1 x 4 µm,
 // 24^3 of them (root level 2), orthographic, 1 µm per pixel. Seen along z the screen shows x and
 // y (1 µm): levels floor(bias) as with isotropic voxels. Seen along x it shows y and z (4 µm):
-// the footprint is 1 / 4, so level 0 up to bias 2 (the finest spacing would give floor(bias)).
+// the footprint is 2^bias / 4, so level 0 below bias 3 (the finest spacing: floor(bias)).
 // Each ray crosses 24 voxels: ceil(24 / 2^L) samples at level L.
 TEST(VolumeRendererLodTest, AnisotropicVoxelsTakeTheLevelTheScreenShows) {
   OCTO_REQUIRE_OPENCL_DEVICE();
