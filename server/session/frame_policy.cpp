@@ -55,14 +55,14 @@ std::optional<FrameOrder> FramePolicy::Poll(Clock::time_point now,
   if (Quiet(now) && refined_version_ < version_) {
     in_flight_ = in_flight_refine_ = true;
     refined_version_ = shown_version_ = version_;
-    return FrameOrder{++sequence_, true, 1.0, version_};
+    return FrameOrder{++sequence_, true, 1.0, version_, true};
   }
   // Something new to show: an interactive frame at once.
   if (shown_version_ < version_) {
     in_flight_ = true;
     in_flight_refine_ = false;
     shown_version_ = version_;
-    return FrameOrder{++sequence_, false, scale_, version_};
+    return FrameOrder{++sequence_, false, scale_, version_, false};
   }
   if (wake != nullptr && refined_version_ < version_ && !interacting_) {
     *wake = last_change_ + options_.idle_delay;

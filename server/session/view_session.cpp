@@ -437,7 +437,7 @@ void ViewSession::OnMessage(const std::shared_ptr<Participant>& from,
       SendError(*from, render_view.status().message(), type, false);
       return;
     }
-    FrameOrder order{1, true, static_cast<double>(shot->scale), 0};
+    FrameOrder order{1, true, static_cast<double>(shot->scale), 0, true};
     FramePolicy policy(context_.frame_policy);
     auto request = RequestLocked(shot->view, pixels, from->preferences.lod_bias, policy, order);
     Status submitted = request.ok() ? Status::Ok() : request.status();
@@ -929,10 +929,7 @@ Result<render::FrameRequest> ViewSession::RequestLocked(ViewId view, protocol::P
   render::FrameOptions options;
   options.mode = order.refine ? render::FrameMode::kRefine : render::FrameMode::kFullFrame;
   options.lod_bias = lod_bias;
-  // While the user moves the view, anisotropic voxels may show their coarse axis coarser than a
-  // pixel (much cheaper); the refinement that follows shows every axis at the screen's
-  // resolution.
-  options.lod_view_spacing = order.refine;
+  options.lod_view_spacing = order.lod_view_spacing;
   // Interactive frames shrink first (FramePolicy); once at the smallest scale, the renderer
   // coarsens the level of detail to hold the frame time.
   if (!order.refine && policy.scale() <= context_.frame_policy.min_scale) {

@@ -20,6 +20,7 @@ TEST_F(FramePolicyTest, AChangeGetsAnInteractiveFrameThenARefinementWhenQuiet) {
   auto order = p.Poll(At(0));
   ASSERT_TRUE(order.has_value());
   EXPECT_FALSE(order->refine);
+  EXPECT_FALSE(order->lod_view_spacing);  // Interactive: the finest spacing (cheaper).
   EXPECT_EQ(order->version, 1u);
   EXPECT_FALSE(p.Poll(At(10)).has_value());  // One in flight.
   p.OnFrameDone(order->sequence, true, 50);
@@ -30,6 +31,7 @@ TEST_F(FramePolicyTest, AChangeGetsAnInteractiveFrameThenARefinementWhenQuiet) {
   auto refine = p.Poll(At(200));
   ASSERT_TRUE(refine.has_value());
   EXPECT_TRUE(refine->refine);
+  EXPECT_TRUE(refine->lod_view_spacing);  // At rest: every axis at the screen's resolution.
   EXPECT_EQ(refine->scale, 1.0);
   EXPECT_EQ(refine->version, 1u);
   p.OnFrameDone(refine->sequence, true, 900);
