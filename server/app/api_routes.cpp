@@ -1,5 +1,6 @@
 #include "app/api_routes.h"
 
+#include <algorithm>
 #include <span>
 #include <string_view>
 #include <utility>
@@ -195,10 +196,15 @@ void ApiRoutes::Handle(net::HttpRequest request, net::HttpResponder responder) {
     }
     return method_not_allowed("GET, POST");
   }
-  if (path.starts_with("/api/views/")) {
+  if (path == "/api/views") {
     if (method != "GET") return method_not_allowed("GET");
-    return GetView(request, std::string(path.substr(std::string_view("/api/views/").size())),
-                   responder);
+    return ListViews(request, responder);
+  }
+  if (path.starts_with("/api/views/")) {
+    const std::string view(path.substr(std::string_view("/api/views/").size()));
+    if (method == "GET") return GetView(request, view, responder);
+    if (method == "DELETE") return DeleteView(request, view, responder);
+    return method_not_allowed("GET, DELETE");
   }
   std::string id, rest;
   if (!SplitDatasetPath(path, &id, &rest)) {
@@ -234,15 +240,26 @@ std::shared_ptr<dataset::Dataset> ApiRoutes::FindVisible(const net::Principal& p
   return options_.access->MayView(principal, *dataset) ? dataset : nullptr;
 }
 
+LatestWinsExecutor* ApiRoutes::state_io() const {
+  return options_.state_io != nullptr ? options_.state_io : uploads_;
+}
+
+bool ApiRoutes::OwnsView(const net::Principal& principal, const protocol::GrantRef& owner) const {
+  if (principal.kind != net::Principal::Kind::kUser) return false;
+  if (options_.access == nullptr || principal.admin) return true;
+  const std::optional<protocol::GrantRef> mine = options_.access->GrantOf(principal);
+  return mine && *mine == owner;
+}
+
 void ApiRoutes::GetView(const net::HttpRequest& request, const std::string& id,
                         const net::HttpResponder& responder) {
   session::ViewStore* views = options_.views;
-  const std::optional<std::string> dataset =
-      views != nullptr && protocol::IsViewLinkId(id) ? views->DatasetOf(id) : std::nullopt;
-  // A view link reads its own document; a user the views of datasets they may see (404 like an
-  // unknown id otherwise); a share link none.
+  const std::optional<session::ViewStore::Entry> entry =
+      views != nullptr && protocol::IsViewLinkId(id) ? views->Find(id) : std::nullopt;
+  // A view link reads its own document; a user the views of datasets they may see, and their
+  // own (404 like an unknown id otherwise); a share link none.
   const net::Principal& principal = request.principal;
-  bool visible = dataset.has_value();
+  bool visible = entry.has_value();
   if (visible && options_.access != nullptr) {
     if (principal.kind == net::Principal::Kind::kView) {
       visible = principal.credential == id;
@@ -250,13 +267,14 @@ void ApiRoutes::GetView(const net::HttpRequest& request, const std::string& id,
       visible = false;
     } else if (!principal.admin) {
       const std::shared_ptr<dataset::Dataset> found =
-          dataset->empty() ? nullptr : registry_->Find(*dataset);
-      visible = found != nullptr && options_.access->MayView(principal, *found);
+          entry->dataset.empty() ? nullptr : registry_->Find(entry->dataset);
+      visible = (found != nullptr && options_.access->MayView(principal, *found)) ||
+                (entry->grant && OwnsView(principal, entry->grant->owner));
     }
   }
   if (!visible) return Respond(responder, HttpResponse::Error(404, "no view link '" + id + "'"));
   // The stored document is read (and checked) off the I/O thread.
-  uploads_->Submit(next_upload_.fetch_add(1), [views, id, responder] {
+  state_io()->Post([views, id, responder] {
     auto text = views->LoadText(id);
     if (text.ok()) {
       auto link = protocol::ParseViewLink(*text);
@@ -272,6 +290,90 @@ void ApiRoutes::GetView(const net::HttpRequest& request, const std::string& id,
     }
     responder.Respond(HttpResponse::Json(200, std::move(*text)));
   });
+}
+
+void ApiRoutes::ListViews(const net::HttpRequest& request, const net::HttpResponder& responder) {
+  const net::Principal& principal = request.principal;
+  if (principal.kind != net::Principal::Kind::kUser) {
+    return Respond(responder, HttpResponse::Error(403, "only users list view links"));
+  }
+  std::vector<protocol::ViewLinkInfo> list;
+  if (options_.views != nullptr) {
+    const std::string base = options_.link_base != nullptr ? options_.link_base->Get() : "/";
+    for (const auto& [id, entry] : options_.views->List()) {
+      // Version 1 documents have no owner: only admins see them (to delete them).
+      if (entry.grant ? !OwnsView(principal, entry.grant->owner) : !principal.admin) continue;
+      protocol::ViewLinkInfo info;
+      info.id = id;
+      info.url = base + "?view=" + id;
+      info.dataset = entry.dataset;
+      if (auto found = registry_->Find(entry.dataset)) info.dataset_name = found->name();
+      if (entry.grant) {
+        const auto kind = entry.grant->creator.kind;
+        info.made_through = kind == protocol::GrantRef::Kind::kUser    ? "user"
+                            : kind == protocol::GrantRef::Kind::kShare ? "share"
+                                                                       : "view";
+        info.created_unix_s = entry.grant->created_unix_s;
+        info.expires_unix_s = entry.grant->expires_unix_s;
+        if (options_.access != nullptr) {
+          info.owner = options_.access->UserName(entry.grant->owner.id).value_or("");
+        }
+      } else {
+        info.made_through = "unknown";
+      }
+      if (options_.access != nullptr) {
+        const session::GrantVerdict verdict =
+            options_.access->Check({protocol::GrantRef::Kind::kView, id}, "");
+        info.valid = verdict.holds;
+        info.reason = verdict.reason;
+      } else {
+        info.valid = true;
+      }
+      list.push_back(std::move(info));
+    }
+  }
+  std::sort(list.begin(), list.end(), [](const auto& a, const auto& b) {
+    return a.created_unix_s != b.created_unix_s ? a.created_unix_s > b.created_unix_s : a.id < b.id;
+  });
+  Respond(responder, HttpResponse::Json(200, protocol::ViewLinkListJson(list)));
+}
+
+void ApiRoutes::DeleteView(const net::HttpRequest& request, const std::string& id,
+                           const net::HttpResponder& responder) {
+  session::ViewStore* views = options_.views;
+  const std::optional<session::ViewStore::Entry> entry =
+      views != nullptr && protocol::IsViewLinkId(id) ? views->Find(id) : std::nullopt;
+  const bool owner = entry && (entry->grant ? OwnsView(request.principal, entry->grant->owner)
+                                            : request.principal.admin);
+  if (!owner) return Respond(responder, HttpResponse::Error(404, "no view link '" + id + "'"));
+  // Unlinking (and the directory's fsync) runs off the I/O thread. The link stops opening at
+  // once; sessions opened through it end at their next revalidation.
+  state_io()->Post([views, id, responder] {
+    Status deleted = views->Delete(id);
+    if (!deleted.ok()) {
+      const int status = deleted.code() == StatusCode::kNotFound ? 404 : 500;
+      responder.Respond(HttpResponse::Error(status, deleted.message()));
+      return;
+    }
+    HttpResponse response;
+    response.status = 204;
+    responder.Respond(std::move(response));
+  });
+}
+
+bool ApiRoutes::MayFeed(const net::Principal& principal, const dataset::Dataset& dataset,
+                        const net::HttpResponder& responder) {
+  if (options_.access == nullptr) return true;
+  if (!AccessControl::MayCreateStreams(principal)) {
+    Respond(responder, HttpResponse::Error(403, "only users send planes or finish streams"));
+    return false;
+  }
+  // The demo is everyone's to look at, and only the admins' to change.
+  if (dataset.id() == dataset::DemoDatasetId() && !principal.admin) {
+    Respond(responder, HttpResponse::Error(403, "only admins send planes to or finish the demo"));
+    return false;
+  }
+  return true;
 }
 
 void ApiRoutes::Health(const net::HttpResponder& responder) {
@@ -333,11 +435,31 @@ void ApiRoutes::CreateStream(const net::HttpRequest& request, const net::HttpRes
   auto parsed =
       protocol::ParseStreamRequest(request.body, protocol::StreamRequestKind::kApi, "request body");
   if (!parsed.ok()) return Respond(responder, ErrorResponse(parsed.status()));
+  std::optional<protocol::GrantRef> creator;
+  if (options_.access != nullptr) creator = options_.access->GrantOf(request.principal);
+  if (creator) {
+    // Each unfinished stream holds threads and a share of everyone's RAM: a few per user.
+    int unfinished = 0;
+    for (const auto& dataset : registry_->List()) {
+      unfinished += dataset->is_stream() &&
+                    dataset->status().state == dataset::DatasetState::kStreaming &&
+                    options_.access->CreatorOf(dataset->id()) == creator;
+    }
+    if (unfinished >= options_.max_streams_per_user) {
+      HttpResponse response = HttpResponse::Error(
+          429, "too many unfinished streams (at most " +
+                   std::to_string(options_.max_streams_per_user) + " per user): finish one first");
+      response.headers.push_back({"Retry-After", "60"});
+      return Respond(responder, std::move(response));
+    }
+  }
   // Creating the cache directory touches the disk: an upload worker does it.
-  RunUpload(responder, [this, responder, spec = std::move(*parsed), user = request.principal.user] {
+  RunUpload(responder, [this, responder, spec = std::move(*parsed), creator] {
     auto created = registry_->CreateStream(spec);
     if (!created.ok()) return Respond(responder, ErrorResponse(created.status()));
-    if (options_.creators != nullptr) options_.creators->RecordCreator((*created)->id(), user);
+    if (options_.creators != nullptr && creator) {
+      options_.creators->RecordCreator((*created)->id(), *creator);
+    }
     Respond(responder, HttpResponse::Json(201, protocol::CreatedJson((*created)->id())));
   });
 }
@@ -351,9 +473,7 @@ void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
   if (upload->dataset == nullptr) {
     return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
   }
-  if (options_.access != nullptr && !AccessControl::MayCreateStreams(request.principal)) {
-    return Respond(responder, HttpResponse::Error(403, "only users send planes"));
-  }
+  if (!MayFeed(request.principal, *upload->dataset, responder)) return;
   if (!upload->dataset->is_stream()) {
     return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));
   }
@@ -390,9 +510,7 @@ void ApiRoutes::Finish(const net::HttpRequest& request, const std::string& id,
   if (dataset == nullptr) {
     return Respond(responder, HttpResponse::Error(404, "no dataset '" + id + "'"));
   }
-  if (options_.access != nullptr && !AccessControl::MayCreateStreams(request.principal)) {
-    return Respond(responder, HttpResponse::Error(403, "only users finish streams"));
-  }
+  if (!MayFeed(request.principal, *dataset, responder)) return;
   if (!dataset->is_stream()) {
     return Respond(responder, HttpResponse::Error(409, "dataset '" + id + "' is not a stream"));
   }

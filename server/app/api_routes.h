@@ -1,9 +1,10 @@
 // ApiRoutes: the REST API of `octoscope serve` (docs/api.md) on top of the dataset registry —
 // health, metrics, the dataset list, histograms, streaming ingest (create, slabs, finish) and
-// stored view links (GET /api/views/{id}).
+// stored view links (GET /api/views: the caller's own; GET and DELETE /api/views/{id}).
 // Every dataset-scoped route answers only for datasets the request's principal may see
 // (AccessControl; others are 404 like unknown ids); /metrics is for admins, creating and
-// feeding streams for users.
+// feeding streams for users (within max_streams_per_user unfinished ones each; the demo only for
+// admins), listing and deleting view links for their owners (and admins).
 // The net layer hands requests over on I/O threads; everything that touches disk or the octree
 // (slab inserts, finishing a stream) runs on the upload workers, and slab bodies are pulled from
 // the connection piece by piece into one buffer of exactly the expected size.
@@ -23,6 +24,7 @@
 #include "net/api_handler.h"
 #include "session/dataset_hub.h"
 #include "session/server_metrics.h"
+#include "session/view_session.h"
 #include "session/view_store.h"
 #include "util/latest_wins_executor.h"
 
@@ -36,7 +38,11 @@ struct ApiRoutesOptions {
   // Records stream creators (the same object as `access`, mutable).
   AccessControl* creators = nullptr;
   int max_concurrent_uploads = 8;  // More at once: 429.
-  session::ViewStore* views = nullptr;  // GET /api/views/{id}; null: 404.
+  session::ViewStore* views = nullptr;  // /api/views; null: 404.
+  // Disk I/O of view links (reading, deleting); null: the upload workers.
+  LatestWinsExecutor* state_io = nullptr;
+  const session::LinkBase* link_base = nullptr;  // URLs in GET /api/views; null: relative.
+  int max_streams_per_user = 8;  // Unfinished streams one user created; more: 429.
 };
 
 class ApiRoutes : public net::ApiHandler {
@@ -64,6 +70,15 @@ class ApiRoutes : public net::ApiHandler {
               const net::HttpResponder& responder);
   void GetView(const net::HttpRequest& request, const std::string& id,
                const net::HttpResponder& responder);
+  void ListViews(const net::HttpRequest& request, const net::HttpResponder& responder);
+  void DeleteView(const net::HttpRequest& request, const std::string& id,
+                  const net::HttpResponder& responder);
+  // Whether `principal` may delete (and sees in its list) a view link owned by `owner`.
+  bool OwnsView(const net::Principal& principal, const protocol::GrantRef& owner) const;
+  // Answers 403 and returns false when `dataset` may not be fed or finished by `principal`.
+  bool MayFeed(const net::Principal& principal, const dataset::Dataset& dataset,
+               const net::HttpResponder& responder);
+  LatestWinsExecutor* state_io() const;
   // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
   bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
   void Respond(const net::HttpResponder& responder, net::HttpResponse response);

@@ -15,6 +15,8 @@
 #include <vector>
 
 #include "app/access_control.h"
+#include "app/user_ids.h"
+#include "app/view_link_quota.h"
 #include "app/api_routes.h"
 #include "app/commands.h"
 #include "app/flags.h"
@@ -63,8 +65,31 @@ sigset_t BlockStopSignals() {
 
 // The users `access` admits: the settings' users plus the admin token's user "admin".
 std::vector<User> UsersWithAdmin(std::vector<User> users, const std::string& token) {
-  if (!token.empty()) users.push_back(User{"admin", token, {}, true, std::nullopt});
+  if (!token.empty()) {
+    users.push_back(User{kAdminUserName, token, {}, true, std::nullopt, kAdminUserName});
+  }
   return users;
+}
+
+// A reload of the users file: validated as at start-up, the ids given, then in force; a bad
+// file keeps the users in force.
+void ReloadUsers(const ServeSettings& settings, UserIds& ids, AccessControl& access,
+                 Logger& logger) {
+  if (settings.users_file.empty()) {
+    logger.Log(LogLevel::kInfo, "SIGHUP: no users file to re-read");
+    return;
+  }
+  auto users = LoadUsersFile(settings.users_file);
+  Status status = users.ok() ? CheckUsersBesideAdmin(*users, settings.token) : users.status();
+  if (status.ok()) status = ids.Assign(*users);
+  if (!status.ok()) {
+    logger.Log(LogLevel::kError, "SIGHUP: keeping the users in force: " + status.message());
+    return;
+  }
+  const size_t n = users->size();
+  access.ReplaceUsers(UsersWithAdmin(std::move(*users), settings.token));
+  logger.Log(LogLevel::kInfo,
+             "SIGHUP: " + std::to_string(n) + " user(s) from " + settings.users_file.string());
 }
 
 int WaitForStopSignal(const sigset_t& set) {
@@ -75,11 +100,12 @@ int WaitForStopSignal(const sigset_t& set) {
 }
 
 // What a WebSocket connection authenticated as (the Authenticator's Principal): a user, a share
-// link or a view link.
-WsCredential ConnectionCredential(const net::WsConnectInfo& info) {
+// link or a view link, and the grant a session it creates is owned under.
+WsCredential ConnectionCredential(const AccessControl& access, const net::WsConnectInfo& info) {
   WsCredential credential;
   credential.user = info.principal.user;
   credential.credential = info.principal.credential;
+  credential.grant = access.GrantOf(info.principal).value_or(protocol::GrantRef{});
   switch (info.principal.kind) {
     case net::Principal::Kind::kUser:
       credential.kind = WsCredential::Kind::kUser;
@@ -172,6 +198,8 @@ int RunServe(std::span<const std::string> args) {
   LatestWinsExecutor encoders(settings->encoder_threads);
   encode::JpegEncoderPool jpeg_encoders;
   auto uploads = std::make_unique<LatestWinsExecutor>(2);
+  // View links' disk I/O (durable writes, reads, deletes): its own thread, never the encoders'.
+  auto state_io = std::make_unique<LatestWinsExecutor>(1);
   TimerQueue timers;
   session::SessionContext session_context;
   session_context.renderer = renderer->get();
@@ -186,6 +214,7 @@ int RunServe(std::span<const std::string> args) {
   if (!views.ok()) return Fail("--state-dir", views.status());
   session::SessionLimits limits;
   limits.max_sessions = settings->limits.max_sessions;
+  limits.max_sessions_per_owner = settings->limits.max_sessions_per_user;
   limits.idle_timeout = settings->limits.idle_timeout;
   auto sessions = std::make_unique<session::SessionRegistry>(&timers, limits);
   session_context.registry = sessions.get();
@@ -194,21 +223,46 @@ int RunServe(std::span<const std::string> args) {
   session::LinkBase link_base;
   session_context.link_base = &link_base;
 
-  // Who may do what: the users (and the admin token), share links scoped to their session's
-  // dataset, view links to the view's dataset.
+  // Who may do what: the users (and the admin token) with their stable ids, share links scoped
+  // to the dataset they were made for, view links to theirs, each while the grant it was made
+  // under holds.
+  auto user_ids = UserIds::Open(settings->state_dir);
+  if (!user_ids.ok()) return Fail("--state-dir", user_ids.status());
+  if (Status s = (*user_ids)->Assign(settings->users); !s.ok()) return Fail("--state-dir", s);
   auto access = std::make_shared<AccessControl>(UsersWithAdmin(settings->users, settings->token));
-  access->SetShareLookup(
-      [sessions = sessions.get()](std::string_view token) -> std::optional<std::string> {
-        auto share = sessions->FindShare(token);
-        if (!share) return std::nullopt;
-        return share->session->dataset_id();
-      });
-  access->SetViewLookup([views = views->get()](std::string_view id) { return views->DatasetOf(id); });
-  auto may_open = [access, registry = registry->get()](const net::Principal& principal,
-                                                       std::string_view id) {
-    std::shared_ptr<dataset::Dataset> dataset = registry->Find(id);
-    return dataset == nullptr || access->MayView(principal, *dataset);
+  auto share_info = [](const std::optional<session::ShareLookup>& share)
+      -> std::optional<ShareGrantInfo> {
+    if (!share) return std::nullopt;
+    const auto state = share->session->share_state(share->id);
+    if (!state) return std::nullopt;
+    return ShareGrantInfo{share->id, share->session->owner_grant(), state->dataset};
   };
+  access->SetShareLookups(
+      [sessions = sessions.get(), share_info](std::string_view token) {
+        return share_info(sessions->FindShare(token));
+      },
+      [sessions = sessions.get(), share_info](std::string_view id) {
+        return share_info(sessions->FindShareById(id));
+      });
+  access->SetViewLookup(
+      [views = views->get()](std::string_view id) -> std::optional<ViewGrantInfo> {
+        auto entry = views->Find(id);
+        if (!entry) return std::nullopt;
+        return ViewGrantInfo{entry->dataset, entry->grant};
+      });
+  access->SetDatasetFinder(
+      [registry = registry->get()](std::string_view id) { return registry->Find(id); });
+  session_context.grants = access.get();
+  session_context.state_io = state_io.get();
+  ViewLinkQuota view_quota(views->get(), settings->limits.max_view_links_per_user,
+                           settings->limits.view_links_per_minute);
+  session_context.admit_view_link = [&view_quota](const protocol::GrantRef& owner) {
+    return view_quota.Admit(owner);
+  };
+  session::ViewSessionOptions session_options;
+  session_options.max_screenshots_in_flight = settings->limits.max_screenshots_in_flight;
+  session_options.messages_per_second = settings->limits.max_messages_per_second;
+  session_options.message_burst = 2.0 * settings->limits.max_messages_per_second;
 
   net::ServerOptions server_options;
   server_options.bind_address = settings->bind;
@@ -223,10 +277,18 @@ int RunServe(std::span<const std::string> args) {
   routes_options.access = access.get();
   routes_options.creators = access.get();
   routes_options.views = views->get();
+  routes_options.state_io = state_io.get();
+  routes_options.link_base = &link_base;
+  routes_options.max_streams_per_user = settings->limits.max_streams_per_user;
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
                                             routes_options);
   auto server = net::Server::Start(
-      server_options, routes, MakeSessionFactory(&session_context, ConnectionCredential, {}, may_open), logger);
+      server_options, routes,
+      MakeSessionFactory(
+          &session_context,
+          [access](const net::WsConnectInfo& info) { return ConnectionCredential(*access, info); },
+          session_options),
+      logger);
   if (!server.ok()) return Fail("listen", server.status());
   // Links carry the public URL (default: where this server listens).
   link_base.Set(PublicBaseUrl(*settings, (*server)->port()));
@@ -240,21 +302,9 @@ int RunServe(std::span<const std::string> args) {
 
   int signal = 0;
   while ((signal = WaitForStopSignal(stop_signals)) == SIGHUP) {
-    // Users from a file are re-read; a bad file keeps the users in force.
-    if (settings->users_file.empty()) {
-      logger.Log(LogLevel::kInfo, "SIGHUP: no users file to re-read");
-      continue;
-    }
-    auto users = LoadUsersFile(settings->users_file);
-    if (!users.ok()) {
-      logger.Log(LogLevel::kError,
-                 "SIGHUP: keeping the users in force: " + users.status().message());
-      continue;
-    }
-    const size_t n = users->size();
-    access->ReplaceUsers(UsersWithAdmin(std::move(*users), settings->token));
-    logger.Log(LogLevel::kInfo,
-               "SIGHUP: " + std::to_string(n) + " user(s) from " + settings->users_file.string());
+    // Users from a file are re-read; connections whose grant ended close at the next
+    // revalidation of their session (within a second).
+    ReloadUsers(*settings, **user_ids, *access, logger);
   }
   logger.Log(LogLevel::kInfo,
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
@@ -265,6 +315,7 @@ int RunServe(std::span<const std::string> args) {
   watchers.clear();
   demo.reset();
   uploads.reset();  // Slab inserts in flight finish.
+  state_io.reset();  // View links being saved are written.
   hub.reset();
   (*registry)->Close();
   logger.Log(LogLevel::kInfo, "stopped");

@@ -123,6 +123,14 @@ void AddServeFlags(Flags& flags) {
   flags.AddValue("idle-timeout-s", "S",
                  "release sessions nobody is connected to and datasets nobody views after S s",
                  "900");
+  flags.AddValue("max-sessions-per-user", "N", "sessions one user or view link holds", "16");
+  flags.AddValue("max-streams-per-user", "N", "unfinished streams one user created", "8");
+  flags.AddValue("max-view-links-per-user", "N", "view links one user owns", "1000");
+  flags.AddValue("view-links-per-minute", "N", "view links one user may save per minute", "20");
+  flags.AddValue("max-screenshots-in-flight", "N", "screenshots one participant renders at once",
+                 "2");
+  flags.AddValue("max-messages-per-second", "N",
+                 "messages one participant may send per second (bursts of twice that)", "200");
 }
 
 Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
@@ -229,6 +237,28 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
   OCTO_ASSIGN_OR_RETURN(const int64_t idle,
                         integer("idle-timeout-s", config.idle_timeout_s, 900, 1, 30 * 86400));
   s.limits.idle_timeout = std::chrono::seconds(idle);
+  struct PerPrincipal {
+    const char* flag;
+    const std::optional<int64_t>& config;
+    int64_t lo, hi;
+    int* out;
+  };
+  for (const PerPrincipal& p : std::initializer_list<PerPrincipal>{
+           {"max-sessions-per-user", config.max_sessions_per_user, 1, 100000,
+            &s.limits.max_sessions_per_user},
+           {"max-streams-per-user", config.max_streams_per_user, 1, 100000,
+            &s.limits.max_streams_per_user},
+           {"max-view-links-per-user", config.max_view_links_per_user, 1, 10000000,
+            &s.limits.max_view_links_per_user},
+           {"view-links-per-minute", config.view_links_per_minute, 1, 100000,
+            &s.limits.view_links_per_minute},
+           {"max-screenshots-in-flight", config.max_screenshots_in_flight, 1, 64,
+            &s.limits.max_screenshots_in_flight},
+           {"max-messages-per-second", config.max_messages_per_second, 10, 100000,
+            &s.limits.max_messages_per_second}}) {
+    OCTO_ASSIGN_OR_RETURN(const int64_t value, integer(p.flag, p.config, *p.out, p.lo, p.hi));
+    *p.out = static_cast<int>(value);
+  }
 
   // Users: from --users, --users-file or the config (one of them).
   const auto users_file = text("users-file", config.users_file);
@@ -276,14 +306,7 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
     s.token = *generated;
     s.token_generated = true;
   }
-  if (!s.token.empty()) {
-    for (const User& u : s.users) {
-      if (u.name == "admin") {
-        return InvalidArgumentError(
-            "a user is named \"admin\", the name of the --token's user: rename it");
-      }
-    }
-  }
+  OCTO_RETURN_IF_ERROR(CheckUsersBesideAdmin(s.users, s.token));
   return s;
 }
 

@@ -28,6 +28,15 @@ struct ServerLimits {
   int max_participants = 16;  // Per session.
   // A session with no participant, and a dataset no session uses, is released after this long.
   std::chrono::seconds idle_timeout{900};
+  // Per principal (docs/server.md, "Threat model"): sessions one user (or one view link) holds,
+  // unfinished streams one user created, view links one user owns and may make per minute.
+  int max_sessions_per_user = 16;
+  int max_streams_per_user = 8;
+  int max_view_links_per_user = 1000;
+  int view_links_per_minute = 20;
+  // Per participant: screenshots rendering at once, messages per second (bursts of twice that).
+  int max_screenshots_in_flight = 2;
+  int max_messages_per_second = 200;
 };
 
 struct ServeSettings {

@@ -43,9 +43,9 @@ class SessionHandler : public net::WsHandler {
       Join(share->session, {share->role, credential_.user, credential_.credential});
       return;
     }
-    auto created = registry->Create(*context_, options_);
+    auto created = registry->Create(*context_, options_, credential_.grant);
     if (!created.ok()) {
-      Refuse(1013, "too many sessions", created.status().message());
+      Refuse(1013, created.status().message(), created.status().message());
       return;
     }
     const std::string name =
@@ -73,10 +73,14 @@ class SessionHandler : public net::WsHandler {
 
  private:
   bool Join(const std::shared_ptr<session::ViewSession>& session, session::JoinOptions options) {
+    const bool through_share = !options.share_token.empty();
     auto joined = session->Join(sink_, std::move(options));
     if (!joined.ok()) {
-      Refuse(joined.status().code() == StatusCode::kResourceExhausted ? 1013 : 4004,
-             joined.status().message(), joined.status().message());
+      const uint16_t code = joined.status().code() == StatusCode::kResourceExhausted ? 1013
+                            : through_share                                         ? 4001
+                                                                                    : 4004;
+      Refuse(code, code == 4001 ? "share link revoked" : joined.status().message(),
+             joined.status().message());
       return false;
     }
     session_ = session;
@@ -101,8 +105,9 @@ class SessionHandler : public net::WsHandler {
     auto sink = sink_;
     std::weak_ptr<session::ViewSession> weak = session_;
     const std::string participant = participant_;
-    context_->encoders->Submit(reinterpret_cast<uintptr_t>(sink.get()), [views, sink, weak,
-                                                                         participant, id] {
+    LatestWinsExecutor* io =
+        context_->state_io != nullptr ? context_->state_io : context_->encoders;
+    io->Post([views, sink, weak, participant, id] {
       auto session = weak.lock();
       if (session == nullptr) return;
       auto link = views != nullptr
@@ -124,6 +129,9 @@ class SessionHandler : public net::WsHandler {
     if (hello == nullptr || hello->resume.empty()) return;
     auto target = context_->registry->FindByResume(hello->resume);
     if (target == session_) return;
+    // Only a session owned under this connection's own grant: a resume key that leaked to
+    // another user takes nothing over.
+    if (target != nullptr && !(target->owner_grant() == credential_.grant)) target = nullptr;
     if (target == nullptr) {
       sink_->SendText(protocol::ErrorEvent(
           "unknown resume key (the session was released); this is a new session", "hello", false));
@@ -151,17 +159,10 @@ class SessionHandler : public net::WsHandler {
 
 net::WsHandlerFactory MakeSessionFactory(const session::SessionContext* context,
                                          WsCredentialFn credential,
-                                         const session::ViewSessionOptions& options,
-                                         OpenCheck may_open) {
-  return [context, credential = std::move(credential), options,
-          may_open](const net::WsConnectInfo& info) -> std::unique_ptr<net::WsHandler> {
-    session::ViewSessionOptions connection = options;
-    if (may_open) {
-      connection.may_open = [may_open, principal = info.principal](std::string_view id) {
-        return may_open(principal, id);
-      };
-    }
-    return std::make_unique<SessionHandler>(context, connection, credential(info));
+                                         const session::ViewSessionOptions& options) {
+  return [context, credential = std::move(credential),
+          options](const net::WsConnectInfo& info) -> std::unique_ptr<net::WsHandler> {
+    return std::make_unique<SessionHandler>(context, options, credential(info));
   };
 }
 

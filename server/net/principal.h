@@ -21,9 +21,13 @@ namespace octoscope::net {
 struct Principal {
   enum class Kind { kUser, kShare, kView };
   Kind kind = Kind::kUser;
-  std::string user;        // kUser: the user's name ("admin" for the single --token).
+  std::string user;        // The user's name ("admin" for the single --token); for a link
+                           // followed by a signed-in user, that user's name (display only).
   bool admin = false;      // kUser: sees every dataset, /metrics, may create streams.
   std::string credential;  // kShare: the share token; kView: the view id.
+  // kUser: the id the server gave the user's name (stable while the name stays in the users
+  // table; a removed name added again gets another one).
+  std::string user_id;
 };
 
 // Checks a request's credentials; nullopt = 401. Called on I/O threads: fast, never blocks on disk.

@@ -5,6 +5,7 @@
 #include "protocol/dataset_json.h"
 #include "protocol/json_fields.h"
 #include "protocol/query_string.h"
+#include "protocol/ws_messages.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -40,6 +41,22 @@ std::string HealthJson(const HealthInfo& h) {
   return "{\"status\":\"ok\",\"version\":" + Quote(h.version) +
          ",\"uptime_s\":" + Number(h.uptime_s) + ",\"datasets\":" + std::to_string(h.datasets) +
          ",\"sessions\":" + std::to_string(h.sessions) + "}";
+}
+
+std::string ViewLinkListJson(const std::vector<ViewLinkInfo>& links) {
+  auto text_or_null = [](const std::string& v) { return v.empty() ? std::string("null") : Quote(v); };
+  std::string out = "[";
+  for (size_t i = 0; i < links.size(); ++i) {
+    const ViewLinkInfo& l = links[i];
+    out += std::string(i ? "," : "") + "{\"id\":" + Quote(l.id) + ",\"url\":" + Quote(l.url) +
+           ",\"dataset\":" + Quote(l.dataset) + ",\"dataset_name\":" + text_or_null(l.dataset_name) +
+           ",\"made_through\":" + Quote(l.made_through) + ",\"owner\":" + text_or_null(l.owner) +
+           ",\"created\":" + Quote(IsoUtc(l.created_unix_s)) + ",\"expires\":" +
+           (l.expires_unix_s ? Quote(IsoUtc(*l.expires_unix_s)) : std::string("null")) +
+           ",\"valid\":" + (l.valid ? "true" : "false") + ",\"reason\":" + text_or_null(l.reason) +
+           "}";
+  }
+  return out + "]";
 }
 
 Result<SlabQuery> ParseSlabQuery(std::string_view query) {

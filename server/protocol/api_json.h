@@ -10,7 +10,9 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <optional>
 #include <string_view>
+#include <vector>
 
 #include "util/result.h"
 
@@ -45,6 +47,23 @@ Result<SlabQuery> ParseSlabQuery(std::string_view query);
 
 // {"planes_received": N, "planes_inserted": M}
 std::string SlabResultJson(int64_t planes_received, int64_t planes_inserted);
+
+// One entry of GET /api/views (docs/api.md).
+struct ViewLinkInfo {
+  std::string id;
+  std::string url;
+  std::string dataset;
+  std::string dataset_name;  // "" when the dataset is not known (any more).
+  std::string made_through;  // "user", "share" or "view": the kind of grant it was made under.
+  std::string owner;         // The owning user's name; "" when the name is no longer a user.
+  int64_t created_unix_s = 0;
+  std::optional<int64_t> expires_unix_s;
+  bool valid = false;   // It opens now.
+  std::string reason;   // Why not, when it does not.
+};
+// [{"id","url","dataset","dataset_name","made_through","owner","created","expires","valid",
+//   "reason"}...]; empty names and reasons are null.
+std::string ViewLinkListJson(const std::vector<ViewLinkInfo>& links);
 
 }  // namespace octoscope::protocol
 

@@ -173,7 +173,13 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
                                   "state-dir",
                                   "max-sessions",
                                   "max-participants",
-                                  "idle-timeout-s"}));
+                                  "idle-timeout-s",
+                                  "max-sessions-per-user",
+                                  "max-streams-per-user",
+                                  "max-view-links-per-user",
+                                  "view-links-per-minute",
+                                  "max-screenshots-in-flight",
+                                  "max-messages-per-second"}));
   ServeConfig config;
   auto strings = [&](const char* key, std::vector<std::string>* out) -> Status {
     if (!j.contains(key)) return Status::Ok();
@@ -244,6 +250,17 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
   OCTO_RETURN_IF_ERROR(integer("max-sessions", 1, 100000, &config.max_sessions));
   OCTO_RETURN_IF_ERROR(integer("max-participants", 1, 1000, &config.max_participants));
   OCTO_RETURN_IF_ERROR(integer("idle-timeout-s", 1, 30 * 86400, &config.idle_timeout_s));
+  OCTO_RETURN_IF_ERROR(
+      integer("max-sessions-per-user", 1, 100000, &config.max_sessions_per_user));
+  OCTO_RETURN_IF_ERROR(integer("max-streams-per-user", 1, 100000, &config.max_streams_per_user));
+  OCTO_RETURN_IF_ERROR(
+      integer("max-view-links-per-user", 1, 10000000, &config.max_view_links_per_user));
+  OCTO_RETURN_IF_ERROR(
+      integer("view-links-per-minute", 1, 100000, &config.view_links_per_minute));
+  OCTO_RETURN_IF_ERROR(
+      integer("max-screenshots-in-flight", 1, 64, &config.max_screenshots_in_flight));
+  OCTO_RETURN_IF_ERROR(
+      integer("max-messages-per-second", 10, 100000, &config.max_messages_per_second));
   return config;
 }
 

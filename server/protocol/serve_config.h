@@ -56,6 +56,13 @@ struct ServeConfig {
   std::optional<int64_t> max_sessions;      // [1, 100000].
   std::optional<int64_t> max_participants;  // [1, 1000].
   std::optional<int64_t> idle_timeout_s;    // [1, 30 days].
+  // Per-principal limits (docs/server.md, "Threat model").
+  std::optional<int64_t> max_sessions_per_user;      // [1, 100000].
+  std::optional<int64_t> max_streams_per_user;       // [1, 100000].
+  std::optional<int64_t> max_view_links_per_user;    // [1, 10^7].
+  std::optional<int64_t> view_links_per_minute;      // [1, 100000].
+  std::optional<int64_t> max_screenshots_in_flight;  // [1, 64].
+  std::optional<int64_t> max_messages_per_second;    // [10, 100000].
 };
 
 // "2027-01-31T00:00:00Z" (RFC 3339 in UTC, optional fraction of a second, "z" or "Z") as seconds

@@ -10,6 +10,7 @@
 #include "octree/brick_geometry.h"
 #include "protocol/json_fields.h"
 #include "protocol/render_json.h"
+#include "protocol/serve_config.h"
 #include "util/strings.h"
 
 namespace octoscope::protocol {
@@ -341,8 +342,13 @@ Result<ClientMessage> ParseKick(const Json& doc) {
 }
 
 Result<ClientMessage> ParseViewSave(const Json& doc) {
-  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view_save", {"type"}));
-  return ClientMessage(ViewSaveMessage{});
+  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view_save", {"type", "ttl_s"}));
+  ViewSaveMessage save;
+  if (auto it = doc.find("ttl_s"); it != doc.end()) {
+    OCTO_ASSIGN_OR_RETURN(save.ttl_s, GetInteger(*it, "view_save.ttl_s", kMinShareTtlSeconds,
+                                                 kMaxShareTtlSeconds));
+  }
+  return ClientMessage(std::move(save));
 }
 
 std::string Number(double v) { return Json(v).dump(); }
@@ -495,8 +501,10 @@ std::string SharesEvent(const std::vector<ShareInfo>& shares) {
   return out + "]}";
 }
 
-std::string ViewSavedEvent(std::string_view id, std::string_view url) {
-  return "{\"type\":\"view_saved\",\"id\":" + Quote(id) + ",\"url\":" + Quote(url) + "}";
+std::string ViewSavedEvent(std::string_view id, std::string_view url,
+                           std::optional<int64_t> expires_unix_s) {
+  return "{\"type\":\"view_saved\",\"id\":" + Quote(id) + ",\"url\":" + Quote(url) +
+         ",\"expires\":" + ExpiresJson(expires_unix_s) + "}";
 }
 
 std::string IsoUtc(int64_t unix_s) {
@@ -508,7 +516,8 @@ std::string IsoUtc(int64_t unix_s) {
   return buffer;
 }
 
-std::string ViewLinkJson(std::string_view dataset, const ViewState& state) {
+std::string ViewLinkJson(std::string_view dataset, const ViewState& state,
+                         const ViewLinkGrant& grant) {
   // The camera in its canonical form: CameraToJson of a camera read back from its own JSON may
   // differ in the last digits (target and up are recomputed), so it is read back until the text
   // no longer changes — then opening the link gives a session whose state reads exactly as stored.
@@ -522,21 +531,60 @@ std::string ViewLinkJson(std::string_view dataset, const ViewState& state) {
     if (text == camera) break;
     camera = std::move(text);
   }
-  return "{\"version\":1,\"dataset\":" + Quote(dataset) + ",\"state\":" + StateJson(canonical) +
-         "}";
+  return "{\"version\":2,\"dataset\":" + Quote(dataset) +
+         ",\"creator\":" + Quote(GrantRefText(grant.creator)) +
+         ",\"owner\":" + Quote(GrantRefText(grant.owner)) +
+         ",\"created\":" + Quote(IsoUtc(grant.created_unix_s)) +
+         ",\"expires\":" + ExpiresJson(grant.expires_unix_s) +
+         ",\"state\":" + StateJson(canonical) + "}";
 }
+
+namespace {
+
+Result<GrantRef> GetGrant(const Json& doc, const char* key) {
+  OCTO_ASSIGN_OR_RETURN(const Json* j, Require(doc, "view link", key));
+  OCTO_ASSIGN_OR_RETURN(std::string text, GetString(*j, key, 128, true));
+  auto grant = ParseGrantRef(text);
+  if (!grant.ok()) return FieldError(key, grant.status().message());
+  return grant;
+}
+
+Result<int64_t> GetTime(const Json& j, const char* key) {
+  OCTO_ASSIGN_OR_RETURN(std::string text, GetString(j, key, 64, true));
+  return ParseRfc3339Utc(text, key);
+}
+
+}  // namespace
 
 Result<ViewLink> ParseViewLink(std::string_view text) {
   // Stored documents are small; the message limits bound them too.
   OCTO_ASSIGN_OR_RETURN(Json doc, ParseMessageText(text, "view link"));
-  OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view link", {"version", "dataset", "state"}));
   OCTO_ASSIGN_OR_RETURN(const Json* version, Require(doc, "view link", "version"));
-  OCTO_ASSIGN_OR_RETURN(int64_t v, GetInteger(*version, "version", 1, 1));
-  (void)v;
+  OCTO_ASSIGN_OR_RETURN(int64_t v, GetInteger(*version, "version", 1, 2));
+  if (v == 1) {
+    OCTO_RETURN_IF_ERROR(CheckKeys(doc, "view link", {"version", "dataset", "state"}));
+  } else {
+    OCTO_RETURN_IF_ERROR(CheckKeys(
+        doc, "view link",
+        {"version", "dataset", "creator", "owner", "created", "expires", "state"}));
+  }
   ViewLink link;
   OCTO_ASSIGN_OR_RETURN(const Json* dataset, Require(doc, "view link", "dataset"));
   OCTO_ASSIGN_OR_RETURN(link.dataset, GetString(*dataset, "dataset", kMaxDatasetIdBytes, true));
   if (!IsDatasetId(link.dataset)) return FieldError("dataset", "is not a dataset id");
+  if (v == 2) {
+    ViewLinkGrant grant;
+    OCTO_ASSIGN_OR_RETURN(grant.creator, GetGrant(doc, "creator"));
+    OCTO_ASSIGN_OR_RETURN(grant.owner, GetGrant(doc, "owner"));
+    if (grant.owner.kind != GrantRef::Kind::kUser) return FieldError("owner", "is not a user");
+    OCTO_ASSIGN_OR_RETURN(const Json* created, Require(doc, "view link", "created"));
+    OCTO_ASSIGN_OR_RETURN(grant.created_unix_s, GetTime(*created, "created"));
+    OCTO_ASSIGN_OR_RETURN(const Json* expires, Require(doc, "view link", "expires"));
+    if (!expires->is_null()) {
+      OCTO_ASSIGN_OR_RETURN(grant.expires_unix_s, GetTime(*expires, "expires"));
+    }
+    link.grant = std::move(grant);
+  }
   OCTO_ASSIGN_OR_RETURN(const Json* state, Require(doc, "view link", "state"));
   OCTO_ASSIGN_OR_RETURN(link.state, StateFromJson(*state, "state"));
   if (!link.state.camera || !link.state.params_json || !link.state.slice_position_um ||

@@ -22,6 +22,7 @@
 #include <variant>
 #include <vector>
 
+#include "protocol/grant_ref.h"
 #include "protocol/view_id.h"
 #include "render/camera.h"
 #include "render/render_params.h"
@@ -158,7 +159,9 @@ struct KickMessage {
   std::string participant;
 };
 
-struct ViewSaveMessage {};
+struct ViewSaveMessage {
+  std::optional<int64_t> ttl_s;  // [kMinShareTtlSeconds, kMaxShareTtlSeconds]; none: no expiry.
+};
 
 using ClientMessage =
     std::variant<HelloMessage, OpenMessage, CameraMessage, ParamsMessage, SlicesMessage,
@@ -259,21 +262,36 @@ struct ShareInfo {
 std::string ShareCreatedEvent(const ShareInfo& share);
 // {"type":"shares","shares":[{"token","role","url","expires","participants"}...]}
 std::string SharesEvent(const std::vector<ShareInfo>& shares);
-// {"type":"view_saved","id","url"}
-std::string ViewSavedEvent(std::string_view id, std::string_view url);
+// {"type":"view_saved","id","url","expires":ISO-8601 UTC|null}
+std::string ViewSavedEvent(std::string_view id, std::string_view url,
+                           std::optional<int64_t> expires_unix_s = std::nullopt);
 // "2026-11-25T12:00:00Z".
 std::string IsoUtc(int64_t unix_s);
 
 // ---- View links (STATE_DIR/views/ID.json; docs/protocol.md "View links") ----
 
+// Who made a view link and for how long it may open (docs/protocol.md "View links").
+struct ViewLinkGrant {
+  GrantRef creator;  // The grant of the participant that saved it: the link holds while it does.
+  GrantRef owner;    // The user at the root of that grant's chain: lists, deletes, is counted.
+  int64_t created_unix_s = 0;
+  std::optional<int64_t> expires_unix_s;  // nullopt: no expiry of its own.
+};
+
 struct ViewLink {
   std::string dataset;
   StateUpdate state;  // Every part present in a document this server wrote.
+  // Documents of version 1 (written before creators were recorded) have none: such a link is no
+  // credential of its own any more (docs/protocol.md).
+  std::optional<ViewLinkGrant> grant;
 };
-// {"version":1,"dataset":ID,"state":STATE}
-std::string ViewLinkJson(std::string_view dataset, const ViewState& state);
-// Strict: unknown keys, a wrong version, a bad dataset id or state are kInvalidArgument naming
-// the field; the state must hold every part (camera, params, slices, layout).
+// {"version":2,"dataset":ID,"creator":GRANT,"owner":GRANT,"created":ISO-8601,
+//  "expires":ISO-8601|null,"state":STATE}
+std::string ViewLinkJson(std::string_view dataset, const ViewState& state,
+                         const ViewLinkGrant& grant);
+// Strict: unknown keys, a wrong version, a bad dataset id, grant, time or state are
+// kInvalidArgument naming the field; the state must hold every part (camera, params, slices,
+// layout). Version 1 documents ({"version":1,"dataset","state"}) are read with no grant.
 Result<ViewLink> ParseViewLink(std::string_view text);
 
 // {"type":"stats","frames_sent":..,"frames_dropped":..,"bytes_sent":..,"bricks_pending":..}

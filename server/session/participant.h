@@ -17,10 +17,12 @@
 #include <string>
 #include <vector>
 
+#include "protocol/grant_ref.h"
 #include "protocol/ws_messages.h"
 #include "session/outbox.h"
 #include "session/server_metrics.h"
 #include "util/timer_queue.h"
+#include "util/token_bucket.h"
 
 namespace octoscope::session {
 
@@ -60,6 +62,7 @@ class Participant {
   std::string name;
   protocol::Role role = protocol::Role::kViewer;
   std::string share_token;  // The link it joined through; "" for the owner and view links.
+  protocol::GrantRef grant;  // What it acts under: the session owner's grant, or its share link.
   bool welcomed = false;    // `welcome` sent (answers `hello`).
   bool left = false;        // The connection ended or was closed by the session.
   int malformed = 0;
@@ -69,6 +72,10 @@ class Participant {
   std::array<protocol::PixelSize, protocol::kViewCount> pixels{};
   std::optional<TimerQueue::TimerId> stats_timer;
   OutboxStats last_stats;
+  // Rate limits of its messages (ViewSessionOptions) and when it was last told it went over.
+  TokenBucket messages{0, 1};
+  TokenBucket hellos{0, 1};
+  TokenBucket::Clock::time_point rate_error_sent{};
 
  private:
   const uint64_t number_;

@@ -32,6 +32,7 @@ SessionRegistry::SessionRegistry(TimerQueue* timers, SessionLimits limits)
   salt_ = salt.ok() ? Fnv1a64(*salt) : Fnv1a64("octoscope");
   std::lock_guard<std::mutex> lock(mu_);
   ScheduleSweepLocked();
+  ScheduleRevalidateLocked();
 }
 
 SessionRegistry::~SessionRegistry() {
@@ -40,8 +41,10 @@ SessionRegistry::~SessionRegistry() {
     std::unique_lock<std::mutex> lock(mu_);
     stopping_ = true;
     if (sweep_timer_ && timers_->Cancel(*sweep_timer_)) sweep_timer_.reset();
+    if (revalidate_timer_ && timers_->Cancel(*revalidate_timer_)) revalidate_timer_.reset();
     // A sweep that started (or is about to) finishes, and touches the registry no more.
-    sweeping_cv_.wait(lock, [&] { return !sweep_timer_ && !sweeping_; });
+    sweeping_cv_.wait(lock,
+                      [&] { return !sweep_timer_ && !revalidate_timer_ && running_timers_ == 0; });
     sessions.swap(sessions_);
     by_resume_.clear();
     shares_.clear();
@@ -55,42 +58,72 @@ void SessionRegistry::ScheduleSweepLocked() {
   // A few sweeps per idle timeout, at most every 5 s and at least every 50 ms.
   const auto period = std::clamp<std::chrono::milliseconds>(
       limits_.idle_timeout / 4, std::chrono::milliseconds(50), std::chrono::milliseconds(5000));
-  sweep_timer_ = timers_->Schedule(Clock::now() + period, [this] {
+  SchedulePeriodicLocked(&sweep_timer_, period, &SessionRegistry::ReleaseIdle);
+}
+
+void SessionRegistry::ScheduleRevalidateLocked() {
+  const auto period = std::max(limits_.revalidate_interval, std::chrono::milliseconds(10));
+  SchedulePeriodicLocked(&revalidate_timer_, period, &SessionRegistry::Revalidate);
+}
+
+void SessionRegistry::SchedulePeriodicLocked(std::optional<TimerQueue::TimerId>* timer,
+                                             std::chrono::milliseconds period,
+                                             void (SessionRegistry::*work)()) {
+  *timer = timers_->Schedule(Clock::now() + period, [this, timer, period, work] {
     std::unique_lock<std::mutex> lock(mu_);
-    sweep_timer_.reset();
+    timer->reset();
     if (stopping_) {
       sweeping_cv_.notify_all();
       return;
     }
-    sweeping_ = true;
+    ++running_timers_;
     lock.unlock();
-    ReleaseIdle();
+    (this->*work)();
     lock.lock();
-    sweeping_ = false;
-    if (!stopping_) ScheduleSweepLocked();
+    --running_timers_;
+    if (!stopping_) SchedulePeriodicLocked(timer, period, work);
     sweeping_cv_.notify_all();
   });
 }
 
-Result<std::shared_ptr<ViewSession>> SessionRegistry::Create(const SessionContext& context,
-                                                             const ViewSessionOptions& options) {
+std::vector<std::shared_ptr<ViewSession>> SessionRegistry::Snapshot() const {
   std::vector<std::shared_ptr<ViewSession>> snapshot;
-  {
+  std::lock_guard<std::mutex> lock(mu_);
+  for (const auto& [id, session] : sessions_) snapshot.push_back(session);
+  return snapshot;
+}
+
+void SessionRegistry::Revalidate() {
+  // Outside mu_: sessions take their own mutex and ask the grant checker, which may look up
+  // share links here.
+  for (const auto& session : Snapshot()) {
+    session->Revalidate();
+    if (!session->closed()) continue;
     std::lock_guard<std::mutex> lock(mu_);
-    for (const auto& [id, session] : sessions_) snapshot.push_back(session);
+    EraseLocked(session.get());
   }
+}
+
+Result<std::shared_ptr<ViewSession>> SessionRegistry::Create(const SessionContext& context,
+                                                             const ViewSessionOptions& options,
+                                                             protocol::GrantRef owner) {
+  const std::vector<std::shared_ptr<ViewSession>> snapshot = Snapshot();
   // Outside mu_: sessions take their own mutex.
-  size_t active = 0;
+  size_t active = 0, owned = 0;
   std::vector<std::pair<Clock::time_point, std::shared_ptr<ViewSession>>> parked;
   for (const auto& session : snapshot) {
     if (auto since = session->empty_since()) {
       parked.emplace_back(*since, session);
     } else {
       ++active;
+      owned += session->owner_grant() == owner;
     }
   }
   const size_t max = static_cast<size_t>(std::max(1, limits_.max_sessions));
   if (active >= max) return ResourceExhaustedError("too many sessions");
+  if (owned >= static_cast<size_t>(std::max(1, limits_.max_sessions_per_owner))) {
+    return ResourceExhaustedError("too many sessions for this user");
+  }
   // Room for one more: the longest-parked sessions give way.
   std::sort(parked.begin(), parked.end(),
             [](const auto& a, const auto& b) { return a.first < b.first; });
@@ -99,7 +132,8 @@ Result<std::shared_ptr<ViewSession>> SessionRegistry::Create(const SessionContex
     std::lock_guard<std::mutex> lock(mu_);
     EraseLocked(parked[i].second.get());
   }
-  auto session = ViewSession::Create(context, RandomOr(8, "session"), RandomOr(16, ""), options);
+  auto session = ViewSession::Create(context, RandomOr(8, "session"), RandomOr(16, ""), options,
+                                     std::move(owner));
   std::lock_guard<std::mutex> lock(mu_);
   if (stopping_) return FailedPreconditionError("the server is shutting down");
   sessions_[session->id()] = session;
@@ -121,11 +155,11 @@ std::shared_ptr<ViewSession> SessionRegistry::FindByResume(std::string_view key)
   return found != nullptr && !found->closed() ? found : nullptr;
 }
 
-void SessionRegistry::AddShare(const std::string& token, std::weak_ptr<ViewSession> session,
-                               protocol::Role role,
+void SessionRegistry::AddShare(const std::string& token, const std::string& id,
+                               std::weak_ptr<ViewSession> session, protocol::Role role,
                                std::optional<std::chrono::system_clock::time_point> expires) {
   std::lock_guard<std::mutex> lock(mu_);
-  shares_.emplace(Digest(token), Share{token, std::move(session), role, expires});
+  shares_.emplace(Digest(token), Share{token, id, std::move(session), role, expires});
 }
 
 void SessionRegistry::RemoveShare(const std::string& token) {
@@ -136,17 +170,35 @@ void SessionRegistry::RemoveShare(const std::string& token) {
   }
 }
 
+std::optional<ShareLookup> SessionRegistry::Lookup(const Share& share) const {
+  if (share.expires && std::chrono::system_clock::now() >= *share.expires) return std::nullopt;
+  auto session = share.session.lock();
+  if (session == nullptr) return std::nullopt;
+  return ShareLookup{std::move(session), share.role, share.id};
+}
+
 std::optional<ShareLookup> SessionRegistry::FindShare(std::string_view token) const {
   std::optional<ShareLookup> found;
   {
     std::lock_guard<std::mutex> lock(mu_);
-    const auto now = std::chrono::system_clock::now();
     auto [lo, hi] = shares_.equal_range(Digest(token));
     for (auto it = lo; it != hi; ++it) {
-      const Share& share = it->second;
-      if (!SecretsEqual(share.token, token)) continue;
-      if (share.expires && now >= *share.expires) continue;
-      if (auto session = share.session.lock()) found = ShareLookup{session, share.role};
+      if (!SecretsEqual(it->second.token, token)) continue;
+      if (auto lookup = Lookup(it->second)) found = std::move(lookup);
+    }
+  }
+  if (found && found->session->closed()) return std::nullopt;
+  return found;
+}
+
+std::optional<ShareLookup> SessionRegistry::FindShareById(std::string_view id) const {
+  std::optional<ShareLookup> found;
+  {
+    // Ids are not secrets (they name links in view-link documents): a plain scan.
+    std::lock_guard<std::mutex> lock(mu_);
+    for (const auto& [digest, share] : shares_) {
+      if (share.id != id) continue;
+      if (auto lookup = Lookup(share)) found = std::move(lookup);
     }
   }
   if (found && found->session->closed()) return std::nullopt;
@@ -154,13 +206,8 @@ std::optional<ShareLookup> SessionRegistry::FindShare(std::string_view token) co
 }
 
 void SessionRegistry::ReleaseIdle() {
-  std::vector<std::shared_ptr<ViewSession>> snapshot;
-  {
-    std::lock_guard<std::mutex> lock(mu_);
-    for (const auto& [id, session] : sessions_) snapshot.push_back(session);
-  }
   const auto now = Clock::now();
-  for (const auto& session : snapshot) {
+  for (const auto& session : Snapshot()) {
     const auto since = session->empty_since();
     if (!since || now - *since < limits_.idle_timeout) continue;
     session->Close(4004, "session released");

@@ -26,6 +26,8 @@ constexpr ViewId kAllViews[] = {ViewId::k3d, ViewId::kX, ViewId::kY, ViewId::kZ}
 constexpr int kScreenshotViewBase = 16;
 constexpr int kScreenshotViewCount = 64;
 constexpr char kViewersCannotDrive[] = "viewers cannot drive the view";
+// Close code when the grant a connection rests on ended (docs/protocol.md).
+constexpr uint16_t kAccessEndedCode = 4005;
 
 size_t Index(ViewId view) { return static_cast<size_t>(view); }
 
@@ -64,7 +66,7 @@ bool OwnerOnly(const protocol::ClientMessage& m) {
          std::holds_alternative<protocol::KickMessage>(m);
 }
 
-int64_t UnixNow() {
+int64_t SystemUnixNow() {
   return std::chrono::duration_cast<std::chrono::seconds>(
              std::chrono::system_clock::now().time_since_epoch())
       .count();
@@ -74,17 +76,20 @@ int64_t UnixNow() {
 
 std::shared_ptr<ViewSession> ViewSession::Create(const SessionContext& context,
                                                  std::string session_id, std::string resume_key,
-                                                 const ViewSessionOptions& options) {
-  return std::shared_ptr<ViewSession>(
-      new ViewSession(context, std::move(session_id), std::move(resume_key), options));
+                                                 const ViewSessionOptions& options,
+                                                 protocol::GrantRef owner) {
+  return std::shared_ptr<ViewSession>(new ViewSession(context, std::move(session_id),
+                                                      std::move(resume_key), options,
+                                                      std::move(owner)));
 }
 
 ViewSession::ViewSession(const SessionContext& context, std::string id, std::string resume_key,
-                         const ViewSessionOptions& options)
+                         const ViewSessionOptions& options, protocol::GrantRef owner)
     : context_(context),
       options_(options),
       id_(std::move(id)),
       resume_key_(std::move(resume_key)),
+      owner_grant_(std::move(owner)),
       empty_since_(Clock::now()) {
   for (ViewId v : kAllViews) views_[Index(v)].id = v;
 }
@@ -121,6 +126,20 @@ Result<std::string> ViewSession::Join(std::shared_ptr<SessionSink> sink, JoinOpt
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return FailedPreconditionError("the session was released");
+    // A share link is checked again here, under the lock its revocation takes: a join that
+    // raced a revoke (or the link's expiry) is refused, never left connected.
+    const Share* share = nullptr;
+    if (!options.share_token.empty()) {
+      const int64_t now = WallClock();
+      for (const Share& s : shares_) {
+        if (s.token == options.share_token && (!s.expires_unix_s || now < *s.expires_unix_s)) {
+          share = &s;
+        }
+      }
+      if (share == nullptr) {
+        return FailedPreconditionError("this share link is not valid (revoked or expired)");
+      }
+    }
     if (options.role == Role::kOwner) {
       // The owner reattaches: an owner connection still attached gives way.
       std::vector<std::shared_ptr<Participant>> owners;
@@ -139,6 +158,11 @@ Result<std::string> ViewSession::Join(std::shared_ptr<SessionSink> sink, JoinOpt
                                     : std::string(protocol::RoleName(options.role)) + " " +
                                           std::to_string(p->number());
     p->share_token = std::move(options.share_token);
+    p->grant = share != nullptr ? protocol::GrantRef{protocol::GrantRef::Kind::kShare, share->id}
+                                : owner_grant_;
+    if (share != nullptr) p->role = share->role;  // The link's role as it is now.
+    p->messages = TokenBucket(options_.messages_per_second, std::max(1.0, options_.message_burst));
+    p->hellos = TokenBucket(options_.hellos_per_second, std::max(1.0, options_.hello_burst));
     p->preferences.jpeg_interactive = options_.jpeg_interactive;
     p->preferences.jpeg_final = options_.jpeg_final;
     participants_.push_back(p);
@@ -246,6 +270,79 @@ void ViewSession::Close(uint16_t code, std::string reason) {
   subscription.Reset();
 }
 
+int64_t ViewSession::WallClock() const {
+  return options_.unix_clock ? options_.unix_clock() : SystemUnixNow();
+}
+
+GrantVerdict ViewSession::CheckGrant(const protocol::GrantRef& grant,
+                                     std::string_view dataset) const {
+  if (context_.grants != nullptr) return context_.grants->Check(grant, dataset);
+  // No access control (tests of other parts): everything holds, owned by the grant's user.
+  const bool user = grant.kind == protocol::GrantRef::Kind::kUser && !grant.id.empty();
+  return GrantVerdict{true, "", false,
+                      user ? grant : protocol::GrantRef{protocol::GrantRef::Kind::kUser, "anyone"}};
+}
+
+void ViewSession::RunStateIo(std::function<void()> job) const {
+  // Posted: every save and read gets its answer (none replaces another).
+  LatestWinsExecutor* io = context_.state_io != nullptr ? context_.state_io : context_.encoders;
+  io->Post(std::move(job));
+}
+
+void ViewSession::Revalidate() {
+  std::string dataset;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return;
+    if (dataset_ != nullptr) dataset = dataset_->dataset().id();
+  }
+  // 1. The owner's grant: when it ended (or no longer covers the dataset), so does the session.
+  const GrantVerdict verdict = CheckGrant(owner_grant_, dataset);
+  if (!verdict.holds) {
+    Close(kAccessEndedCode, "access ended: " + verdict.reason);
+    return;
+  }
+  // 2. Share links past their expiry end for those who joined through them too.
+  std::vector<render::ViewId> to_close;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_) return;
+    const int64_t now = WallClock();
+    std::vector<std::string> expired;
+    for (const Share& share : shares_) {
+      if (share.expires_unix_s && now >= *share.expires_unix_s) expired.push_back(share.token);
+    }
+    for (const std::string& token : expired) {
+      RemoveShareLocked(token, "share link expired", &to_close);
+    }
+    if (!expired.empty()) SendSharesLocked();
+  }
+  for (render::ViewId view : to_close) context_.renderer->CloseView(view);
+}
+
+std::optional<ViewSession::ShareState> ViewSession::share_state(std::string_view id) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (closed_) return std::nullopt;
+  const int64_t now = WallClock();
+  for (const Share& share : shares_) {
+    if (share.id != id) continue;
+    if (share.expires_unix_s && now >= *share.expires_unix_s) return std::nullopt;
+    return ShareState{share.role, share.dataset, share.expires_unix_s};
+  }
+  return std::nullopt;
+}
+
+void ViewSession::RemoveShareLocked(const std::string& token, const std::string& reason,
+                                    std::vector<render::ViewId>* to_close) {
+  std::erase_if(shares_, [&](const Share& s) { return s.token == token; });
+  if (context_.registry != nullptr) context_.registry->RemoveShare(token);
+  std::vector<std::shared_ptr<Participant>> joined;
+  for (const auto& p : participants_) {
+    if (p->share_token == token) joined.push_back(p);
+  }
+  for (const auto& p : joined) RemoveLocked(p, 4001, reason, to_close);
+}
+
 std::shared_ptr<Participant> ViewSession::FindLocked(std::string_view id) const {
   for (const auto& p : participants_) {
     if (p->id() == id) return p;
@@ -271,6 +368,29 @@ void ViewSession::HandleText(std::string_view participant, std::string_view text
   std::string type;
   auto message = protocol::ParseClientMessage(text, &type);
   if (message.ok()) {
+    // Acknowledgements are never dropped (a lost one would stall the participant's frames);
+    // everything else counts against the participant's message rate.
+    if (!std::holds_alternative<protocol::AckMessage>(*message)) {
+      bool admitted = true, tell = false;
+      {
+        std::lock_guard<std::mutex> lock(mu_);
+        const auto now = TokenBucket::Clock::now();
+        admitted = from->messages.Take(now);
+        if (admitted && std::holds_alternative<protocol::HelloMessage>(*message)) {
+          admitted = from->hellos.Take(now);
+        }
+        if (!admitted && now - from->rate_error_sent >= std::chrono::seconds(1)) {
+          from->rate_error_sent = now;
+          tell = true;
+        }
+      }
+      if (!admitted) {
+        if (tell) {
+          SendError(*from, "too many messages: " + type + " dropped (slow down)", type, false);
+        }
+        return;
+      }
+    }
     OnMessage(from, std::move(*message));
     return;
   }
@@ -313,8 +433,8 @@ void ViewSession::OnMessage(const std::shared_ptr<Participant>& from,
     from->outbox().OnAck(ack->frame);
     return;
   }
-  if (std::holds_alternative<protocol::ViewSaveMessage>(message)) {
-    OnViewSave(from);
+  if (auto* save = std::get_if<protocol::ViewSaveMessage>(&message)) {
+    OnViewSave(from, *save);
     return;
   }
   Role role;
@@ -341,17 +461,16 @@ void ViewSession::OnMessage(const std::shared_ptr<Participant>& from,
         return;
       }
       // The stored document is read off the I/O thread.
-      context_.encoders->Submit(reinterpret_cast<uintptr_t>(from.get()) + protocol::kViewCount + 1,
-                                [weak = weak_from_this(), from, view = open->view] {
-                                  auto self = weak.lock();
-                                  if (self == nullptr) return;
-                                  auto link = self->context_.views->Load(view);
-                                  if (!link.ok()) {
-                                    self->SendError(*from, link.status().message(), "open", false);
-                                    return;
-                                  }
-                                  self->OnOpen(from, link->dataset, link->state, true);
-                                });
+      RunStateIo([weak = weak_from_this(), from, view = open->view] {
+                   auto self = weak.lock();
+                   if (self == nullptr) return;
+                   auto link = self->context_.views->Load(view);
+                   if (!link.ok()) {
+                     self->SendError(*from, link.status().message(), "open", false);
+                     return;
+                   }
+                   self->OnOpen(from, link->dataset, link->state, true);
+                 });
       return;
     }
     OnOpen(from, open->dataset, open->state, false);
@@ -418,6 +537,17 @@ void ViewSession::OnMessage(const std::shared_ptr<Participant>& from,
     }
   } else if (auto* shot = std::get_if<protocol::ScreenshotMessage>(&message)) {
     const protocol::PixelSize pixels = from->pixels[Index(shot->view)];
+    const auto in_flight = std::count_if(screenshots_.begin(), screenshots_.end(),
+                                         [&](const Screenshot& s) { return s.participant == from; });
+    if (in_flight >= std::max(1, options_.max_screenshots_in_flight)) {
+      lock.unlock();
+      SendError(*from,
+                "too many screenshots at once (at most " +
+                    std::to_string(std::max(1, options_.max_screenshots_in_flight)) +
+                    " in flight); wait for one to arrive",
+                type, false);
+      return;
+    }
     const auto key = dataset_->render_key();
     if (!key || pixels.width == 0) {
       lock.unlock();
@@ -507,6 +637,11 @@ void ViewSession::OpenViewLink(std::string_view participant, protocol::ViewLink 
 void ViewSession::OnOwnerMessage(const std::shared_ptr<Participant>& from,
                                  const protocol::ClientMessage& message) {
   const std::string type(protocol::MessageTypeName(message));
+  std::optional<GrantVerdict> share_verdict;
+  if (std::holds_alternative<protocol::ShareCreateMessage>(message)) {
+    // Asked before the lock: the checker may look up share links, which asks their session.
+    share_verdict = CheckGrant(owner_grant_, "");
+  }
   std::vector<render::ViewId> to_close;
   std::unique_lock<std::mutex> lock(mu_);
   if (closed_ || from->left) return;
@@ -516,19 +651,32 @@ void ViewSession::OnOwnerMessage(const std::shared_ptr<Participant>& from,
       SendError(*from, "share links are not available on this server", type, false);
       return;
     }
-    auto token = RandomHex(16);
-    if (!token.ok()) {
+    // A link never grants more than its maker's own access: a session opened through a link
+    // that a guest made cannot be shared on.
+    if (!share_verdict->holds || share_verdict->via_share) {
       lock.unlock();
-      SendError(*from, token.status().message(), type, false);
+      SendError(*from,
+                !share_verdict->holds
+                    ? "cannot share: " + share_verdict->reason
+                    : std::string("this session rests on a share link; it cannot be shared further"),
+                type, false);
       return;
     }
-    Share share{*token, create->role, std::nullopt};
+    auto token = RandomHex(16);
+    auto id = RandomHex(8);
+    if (!token.ok() || !id.ok()) {
+      lock.unlock();
+      SendError(*from, (token.ok() ? id.status() : token.status()).message(), type, false);
+      return;
+    }
+    Share share{*token, *id, create->role, std::nullopt,
+                dataset_ != nullptr ? dataset_->dataset().id() : std::string()};
     std::optional<std::chrono::system_clock::time_point> expires;
     if (create->ttl_s) {
-      share.expires_unix_s = UnixNow() + *create->ttl_s;
-      expires = std::chrono::system_clock::now() + std::chrono::seconds(*create->ttl_s);
+      share.expires_unix_s = WallClock() + *create->ttl_s;
+      expires = std::chrono::system_clock::time_point(std::chrono::seconds(*share.expires_unix_s));
     }
-    context_.registry->AddShare(share.token, weak_from_this(), share.role, expires);
+    context_.registry->AddShare(share.token, share.id, weak_from_this(), share.role, expires);
     shares_.push_back(share);
     from->sink().SendText(protocol::ShareCreatedEvent(
         {share.token, share.role, LinkUrl("share", share.token), share.expires_unix_s, 0}));
@@ -544,13 +692,7 @@ void ViewSession::OnOwnerMessage(const std::shared_ptr<Participant>& from,
       return;
     }
     const std::string token = it->token;
-    shares_.erase(it);
-    if (context_.registry != nullptr) context_.registry->RemoveShare(token);
-    std::vector<std::shared_ptr<Participant>> joined;
-    for (const auto& p : participants_) {
-      if (p->share_token == token) joined.push_back(p);
-    }
-    for (const auto& p : joined) RemoveLocked(p, 4001, "share link revoked", &to_close);
+    RemoveShareLocked(token, "share link revoked", &to_close);
     SendSharesLocked();
   } else if (auto* change = std::get_if<protocol::ParticipantRoleMessage>(&message)) {
     auto target = FindLocked(std::string_view(change->participant));
@@ -593,9 +735,11 @@ void ViewSession::OnOwnerMessage(const std::shared_ptr<Participant>& from,
   for (render::ViewId view : to_close) context_.renderer->CloseView(view);
 }
 
-void ViewSession::OnViewSave(const std::shared_ptr<Participant>& from) {
+void ViewSession::OnViewSave(const std::shared_ptr<Participant>& from,
+                             const protocol::ViewSaveMessage& message) {
   std::string dataset_id;
   std::optional<protocol::ViewState> state;
+  protocol::GrantRef grant;
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_ || from->left) return;
@@ -605,24 +749,40 @@ void ViewSession::OnViewSave(const std::shared_ptr<Participant>& from) {
     }
     dataset_id = dataset_->dataset().id();
     state = *state_;
+    grant = from->grant;
   }
   if (context_.views == nullptr) {
     SendError(*from, "view links are not available on this server", "view_save", false);
     return;
   }
-  // The durable write (fsync) runs off the I/O thread.
-  context_.encoders->Submit(
-      reinterpret_cast<uintptr_t>(from.get()) + protocol::kViewCount + 2,
-      [weak = weak_from_this(), from, dataset_id, state = std::move(state)] {
-        auto self = weak.lock();
-        if (self == nullptr) return;
-        auto id = self->context_.views->Save(dataset_id, *state);
-        if (!id.ok()) {
-          self->SendError(*from, id.status().message(), "view_save", false);
-          return;
-        }
-        from->sink().SendText(protocol::ViewSavedEvent(*id, self->LinkUrl("view", *id)));
-      });
+  // The link rests on the grant of the participant who saves it, and counts against the user at
+  // the root of that grant.
+  const GrantVerdict verdict = CheckGrant(grant, dataset_id);
+  if (!verdict.holds) {
+    SendError(*from, "cannot save a view link: " + verdict.reason, "view_save", false);
+    return;
+  }
+  if (context_.admit_view_link) {
+    if (Status admitted = context_.admit_view_link(verdict.owner); !admitted.ok()) {
+      SendError(*from, admitted.message(), "view_save", false);
+      return;
+    }
+  }
+  const int64_t now = WallClock();
+  protocol::ViewLinkGrant link{grant, verdict.owner, now, std::nullopt};
+  if (message.ttl_s) link.expires_unix_s = now + *message.ttl_s;
+  // The durable write (fsync) runs off the I/O thread, and off the frame encoders.
+  RunStateIo([weak = weak_from_this(), from, dataset_id, state = std::move(state), link] {
+               auto self = weak.lock();
+               if (self == nullptr) return;
+               auto id = self->context_.views->Save(dataset_id, *state, link);
+               if (!id.ok()) {
+                 self->SendError(*from, id.status().message(), "view_save", false);
+                 return;
+               }
+               from->sink().SendText(protocol::ViewSavedEvent(*id, self->LinkUrl("view", *id),
+                                                              link.expires_unix_s));
+             });
 }
 
 std::string ViewSession::LinkUrl(std::string_view key, std::string_view value) const {
@@ -686,7 +846,15 @@ void ViewSession::MarkDrivingLocked(Participant* from) {
 
 void ViewSession::OnOpen(const std::shared_ptr<Participant>& from, const std::string& dataset_id,
                          const std::optional<protocol::StateUpdate>& update, bool exact) {
-  if (options_.may_open && !options_.may_open(dataset_id)) {
+  protocol::GrantRef grant;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (closed_ || from->left) return;
+    grant = from->grant;
+  }
+  // Only what the participant's grant covers (a share link: the dataset it was made for); any
+  // other dataset is answered like one that does not exist.
+  if (!CheckGrant(grant, dataset_id).holds) {
     SendError(*from, "no dataset '" + dataset_id + "'", "open", false);
     return;
   }
@@ -751,6 +919,21 @@ void ViewSession::OnOpen(const std::shared_ptr<Participant>& from, const std::st
         g.render_view = 0;
       }
     }
+    // Share links admit to the dataset they were made for: those made for another one end here.
+    std::vector<std::string> other_dataset;
+    bool scoped = false;
+    for (Share& share : shares_) {
+      if (share.dataset.empty()) {
+        share.dataset = dataset_id;
+        scoped = true;
+      } else if (share.dataset != dataset_id) {
+        other_dataset.push_back(share.token);
+      }
+    }
+    for (const std::string& token : other_dataset) {
+      RemoveShareLocked(token, "share link revoked: the session opened another dataset", &to_close);
+    }
+    if (scoped || !other_dataset.empty()) SendSharesLocked();
     old_subscription = std::move(dataset_subscription_);
     dataset_ = *use;
     state_ = std::move(state);

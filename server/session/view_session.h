@@ -16,6 +16,14 @@
 // changes are announced to the other participants (`state` events), the participant list with
 // who is driving to everyone (`participants`). `view_save` stores the state in the ViewStore.
 //
+// Grants (docs/server.md, "Threat model"): the session is owned under a grant (its owner's user,
+// or the view link it was opened through); each participant acts under the owner's grant or the
+// share link it joined through. A participant opens only datasets its grant covers (a share link
+// covers the dataset it was made for), share links are made only under grants without a share
+// link in their chain, and view links record the grant they were made under. Revalidate() ends
+// what no longer holds: the whole session (4005) when the owner's grant ended, expired share
+// links (4001 for those who joined through them).
+//
 // Threads: HandleText, Join and Leave run on connections' strands; render results arrive on the
 // render thread, encoded frames on encoder threads, timers on the timer thread. Nothing here
 // blocks any of them for long: render submissions and outbox offers take small mutexes, encoding
@@ -48,6 +56,7 @@
 #include "session/aspect_groups.h"
 #include "session/dataset_hub.h"
 #include "session/frame_policy.h"
+#include "session/grant_checker.h"
 #include "session/outbox.h"
 #include "session/participant.h"
 #include "session/server_metrics.h"
@@ -87,6 +96,12 @@ struct SessionContext {
   ServerMetrics* metrics = nullptr;
   SessionRegistry* registry = nullptr;  // Share links; null: share_create is refused.
   ViewStore* views = nullptr;           // View links; null: view_save is refused.
+  // Disk I/O of view links (saving, reading); null: the encoders (tests only).
+  LatestWinsExecutor* state_io = nullptr;
+  // Who may do what; null: every grant holds (tests of other parts).
+  const GrantChecker* grants = nullptr;
+  // Whether `owner` may store one more view link now (count and rate limits); null: always.
+  std::function<Status(const protocol::GrantRef& owner)> admit_view_link;
   std::string server_version;
   const LinkBase* link_base = nullptr;  // Null: links are relative ("/?share=TOKEN").
   int max_participants = 16;
@@ -102,33 +117,42 @@ struct ViewSessionOptions {
   std::chrono::milliseconds dataset_event_interval{250};
   std::chrono::milliseconds data_refresh_interval{250};
   std::chrono::milliseconds stats_interval{1000};
-  // Whether this session may open the dataset `id` (the access of the principal that created it:
-  // controllers drive within the owner's access); null = any. A dataset it may not open is
-  // answered like one that does not exist.
-  std::function<bool(std::string_view id)> may_open;
   std::chrono::milliseconds driving_hold{2000};  // A state change marks its sender driving.
+  // Per participant: screenshots rendering at once, and message rates (acknowledgements are not
+  // counted): beyond them a non-fatal error, the message dropped.
+  int max_screenshots_in_flight = 2;
+  double messages_per_second = 200;
+  double message_burst = 400;
+  double hellos_per_second = 1;
+  double hello_burst = 5;
+  // Seconds since 1970 now (share-link and view-link expiry); null: the system clock. A seam for
+  // tests that let links expire.
+  std::function<int64_t()> unix_clock;
 };
 
 struct JoinOptions {
   protocol::Role role = protocol::Role::kViewer;
   std::string name;         // Display name; "" = a default from the role and number.
-  std::string share_token;  // The share link used to join ("" for none).
+  std::string share_token;  // The share link used to join ("" for none: the owner).
 };
 
 class ViewSession : public std::enable_shared_from_this<ViewSession> {
  public:
-  // A session without participants yet; `resume_key` reattaches its owner (hello.resume).
+  // A session without participants yet, owned under `owner`; `resume_key` reattaches its owner
+  // (hello.resume).
   static std::shared_ptr<ViewSession> Create(const SessionContext& context, std::string session_id,
                                              std::string resume_key,
-                                             const ViewSessionOptions& options = {});
+                                             const ViewSessionOptions& options = {},
+                                             protocol::GrantRef owner = {});
   ~ViewSession();
   ViewSession(const ViewSession&) = delete;
   ViewSession& operator=(const ViewSession&) = delete;
 
   // Adds a participant reached through `sink`; its id, or kResourceExhausted ("session full")
-  // when max_participants are connected, kFailedPrecondition when the session is closed. Joining
-  // as the owner closes a previous owner connection still attached (4002). Events start with
-  // the participant's `hello` (welcome, opened, shares, participants).
+  // when max_participants are connected, kFailedPrecondition when the session is closed or the
+  // share link it joins through is no longer one of the session's valid links (revoked or
+  // expired meanwhile). Joining as the owner closes a previous owner connection still attached
+  // (4002). Events start with the participant's `hello` (welcome, opened, shares, participants).
   Result<std::string> Join(std::shared_ptr<SessionSink> sink, JoinOptions options);
   // One text message of participant `participant`. Malformed ones get an error event; after
   // protocol::kMaxMalformedMessages of them the connection is closed (1008).
@@ -141,11 +165,23 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
   // Closes every participant's connection with `code` and releases the session (render views
   // closed, share links unregistered). Idempotent.
   void Close(uint16_t code = 1001, std::string reason = "session released");
+  // Ends what no longer holds (see the header comment). Never call with a session's mutex held.
+  void Revalidate();
+
+  // What a share link of this session is (the access layer's view of it), nullopt when the
+  // session holds no valid link of that id.
+  struct ShareState {
+    protocol::Role role = protocol::Role::kViewer;
+    std::string dataset;  // The dataset it was made for ("" until the session opens one).
+    std::optional<int64_t> expires_unix_s;
+  };
+  std::optional<ShareState> share_state(std::string_view id) const;
 
   const std::string& id() const { return id_; }
   // The id of the dataset the session views ("" before the first open).
   std::string dataset_id() const;
   const std::string& resume_key() const { return resume_key_; }
+  const protocol::GrantRef& owner_grant() const { return owner_grant_; }
   size_t participant_count() const;
   bool closed() const;
   // Since when no participant is connected (nullopt while one is).
@@ -194,7 +230,7 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
   };
 
   ViewSession(const SessionContext& context, std::string id, std::string resume_key,
-              const ViewSessionOptions& options);
+              const ViewSessionOptions& options, protocol::GrantRef owner);
 
   void OnMessage(const std::shared_ptr<Participant>& from, protocol::ClientMessage message);
   void OnHello(const std::shared_ptr<Participant>& from, const protocol::HelloMessage& hello);
@@ -202,7 +238,13 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
               const std::optional<protocol::StateUpdate>& update, bool exact);
   void OnOwnerMessage(const std::shared_ptr<Participant>& from,
                       const protocol::ClientMessage& message);
-  void OnViewSave(const std::shared_ptr<Participant>& from);
+  void OnViewSave(const std::shared_ptr<Participant>& from,
+                  const protocol::ViewSaveMessage& message);
+  // The verdict of the grant checker (every grant holds without one).
+  GrantVerdict CheckGrant(const protocol::GrantRef& grant, std::string_view dataset) const;
+  int64_t WallClock() const;
+  // Runs disk I/O of view links off the I/O threads (and off the frame encoders).
+  void RunStateIo(std::function<void()> job) const;
   void SendError(Participant& to, std::string_view message, std::string_view request, bool fatal);
 
   // The rest REQUIRES mu_ held unless named otherwise.
@@ -217,6 +259,9 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
   void BroadcastParticipantsLocked(bool force);
   std::vector<protocol::ParticipantInfo> ParticipantsLocked(Clock::time_point now) const;
   void SendSharesLocked();
+  // Removes the share link `token` and closes those who joined through it with 4001 `reason`.
+  void RemoveShareLocked(const std::string& token, const std::string& reason,
+                         std::vector<render::ViewId>* to_close);
   // Recomputes the render groups of every view from the participants' viewports.
   void RegroupLocked();
   void RegroupViewLocked(View& view, Clock::time_point now, std::vector<render::ViewId>* to_close);
@@ -257,6 +302,7 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
   const ViewSessionOptions options_;
   const std::string id_;
   const std::string resume_key_;
+  const protocol::GrantRef owner_grant_;
 
   mutable std::mutex mu_;  // Guards everything below.
   bool closed_ = false;
@@ -265,8 +311,10 @@ class ViewSession : public std::enable_shared_from_this<ViewSession> {
   std::optional<Clock::time_point> empty_since_;
   struct Share {
     std::string token;
+    std::string id;  // Public: names the link in grants.
     protocol::Role role = protocol::Role::kViewer;
     std::optional<int64_t> expires_unix_s;
+    std::string dataset;  // The dataset it admits to ("" until the session opens one).
   };
   std::vector<Share> shares_;
   // A view link to open for a participant once it has been welcomed (OpenViewLink).

@@ -57,9 +57,9 @@ Result<std::unique_ptr<ViewStore>> ViewStore::Open(const fs::path& state_dir) {
     if (path.extension() != ".json") continue;
     const std::string id = path.stem().string();
     if (!protocol::IsViewLinkId(id)) continue;
-    // The dataset of each view, so that access checks never read the disk later.
+    // The dataset and grant of each view, so that access checks never read the disk later.
     auto link = store->Load(id);
-    store->datasets_[id] = link.ok() ? link->dataset : std::string();
+    store->entries_[id] = link.ok() ? Entry{link->dataset, link->grant} : Entry{};
   }
   if (error) return IoError(dir.string() + ": cannot list view links: " + error.message());
   return store;
@@ -67,14 +67,31 @@ Result<std::unique_ptr<ViewStore>> ViewStore::Open(const fs::path& state_dir) {
 
 fs::path ViewStore::PathOf(std::string_view id) const { return dir_ / (std::string(id) + ".json"); }
 
-Result<std::string> ViewStore::Save(std::string_view dataset, const protocol::ViewState& state) {
+Result<std::string> ViewStore::Save(std::string_view dataset, const protocol::ViewState& state,
+                                    const protocol::ViewLinkGrant& grant) {
   OCTO_ASSIGN_OR_RETURN(std::string id, RandomBase64Url(16));
-  const std::string document = protocol::ViewLinkJson(dataset, state);
+  const std::string document = protocol::ViewLinkJson(dataset, state, grant);
   Status written = WriteFileDurably(PathOf(id), document, ".tmp", 0600);
   if (!written.ok()) return written.WithContext("saving a view link");
   std::lock_guard<std::mutex> lock(mu_);
-  datasets_[id] = std::string(dataset);
+  entries_[id] = Entry{std::string(dataset), grant};
   return id;
+}
+
+Status ViewStore::Delete(std::string_view id) {
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = entries_.find(id);
+    if (it == entries_.end()) return NotFoundError("no such view link");
+    // Out of the index first: the link stops opening even should the unlink fail.
+    entries_.erase(it);
+  }
+  std::error_code error;
+  fs::remove(PathOf(id), error);
+  if (error) {
+    return IoError("view link " + std::string(id) + ": cannot delete: " + error.message());
+  }
+  return SyncDirectory(dir_);
 }
 
 Result<std::string> ViewStore::LoadText(std::string_view id) const {
@@ -99,16 +116,23 @@ Result<protocol::ViewLink> ViewStore::Load(std::string_view id) const {
   return link;
 }
 
-bool ViewStore::Exists(std::string_view id) const {
+std::optional<ViewStore::Entry> ViewStore::Find(std::string_view id) const {
   std::lock_guard<std::mutex> lock(mu_);
-  return datasets_.find(id) != datasets_.end();
+  auto it = entries_.find(id);
+  if (it == entries_.end()) return std::nullopt;
+  return it->second;
 }
 
-std::optional<std::string> ViewStore::DatasetOf(std::string_view id) const {
+std::vector<std::pair<std::string, ViewStore::Entry>> ViewStore::List() const {
   std::lock_guard<std::mutex> lock(mu_);
-  auto it = datasets_.find(id);
-  if (it == datasets_.end()) return std::nullopt;
-  return it->second;
+  return {entries_.begin(), entries_.end()};
+}
+
+size_t ViewStore::OwnedBy(const protocol::GrantRef& owner) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  size_t n = 0;
+  for (const auto& [id, entry] : entries_) n += entry.grant && entry.grant->owner == owner;
+  return n;
 }
 
 }  // namespace octoscope::session

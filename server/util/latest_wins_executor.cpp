@@ -41,6 +41,16 @@ void LatestWinsExecutor::Submit(uint64_t key, std::function<void()> job) {
   cv_.notify_one();
 }
 
+void LatestWinsExecutor::Post(std::function<void()> job) {
+  uint64_t key;
+  {
+    std::lock_guard lock(mu_);
+    key = next_post_key_++;
+    if (next_post_key_ == 0) next_post_key_ = kFirstPostKey;
+  }
+  Submit(key, std::move(job));
+}
+
 void LatestWinsExecutor::Forget(uint64_t key) {
   std::lock_guard lock(mu_);
   pending_.erase(key);  // Its entry in order_ is skipped when reached.

@@ -30,7 +30,12 @@ class LatestWinsExecutor {
   LatestWinsExecutor(const LatestWinsExecutor&) = delete;
   LatestWinsExecutor& operator=(const LatestWinsExecutor&) = delete;
 
+  // REQUIRES: key < kFirstPostKey.
   void Submit(uint64_t key, std::function<void()> job);
+  // A job that is never replaced (durable writes, requests that each want an answer): it runs
+  // under a key of its own from the range [kFirstPostKey, 2^64).
+  void Post(std::function<void()> job);
+  static constexpr uint64_t kFirstPostKey = uint64_t{1} << 63;
   // Drops the key's pending job (a running one finishes).
   void Forget(uint64_t key);
   // Returns when no job of `key` is pending or running.
@@ -51,6 +56,7 @@ class LatestWinsExecutor {
   bool shutdown_ = false;
   uint64_t replaced_ = 0;
   uint64_t failures_ = 0;
+  uint64_t next_post_key_ = kFirstPostKey;
   std::vector<std::thread> workers_;
 };
 

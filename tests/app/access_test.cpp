@@ -6,7 +6,9 @@
 #include <gtest/gtest.h>
 #include <signal.h>
 
+#include <ctime>
 #include <filesystem>
+#include <iterator>
 #include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
@@ -60,6 +62,37 @@ class AccessTest : public ::testing::Test {
     fs::remove_all(dir_);
   }
 
+  // Replaces the users file atomically.
+  void WriteUsersJson(const json& users) {
+    std::ofstream(dir_ / "users.json.new") << users.dump(2);
+    fs::rename(dir_ / "users.json.new", dir_ / "users.json");
+  }
+  json UserEntry(const std::string& name, const char* token, const std::string& folder) {
+    return {{"name", name}, {"token", token}, {"folders", {(dir_ / "data" / folder).string()}}};
+  }
+  // Sends SIGHUP and waits until `token` gets `status` from GET /api/datasets.
+  bool ReloadUntil(const char* token, int status) {
+    if (kill(server_.pid(), SIGHUP) != 0) return false;
+    for (int i = 0; i < 200; ++i) {
+      if (Get("/api/datasets", token).status == status) return true;
+      std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    }
+    return false;
+  }
+  // Connects with `token`, opens `id`, saves the view; the view link's id ("" on failure).
+  std::string SaveView(WsClient& ws, const char* token, const std::string& id) {
+    auto opened = Open(ws, token, id);
+    if (!opened || (*opened)["type"] != "opened") return "";
+    ws.Send(json{{"type", "view_save"}}.dump());
+    auto saved = ReadEvent(ws, "view_saved");
+    return saved ? (*saved)["id"].get<std::string>() : "";
+  }
+  int ConnectStatus(const std::string& target) {
+    WsClient ws;
+    if (ws.Connect(server_.port(), target).empty()) return 101;
+    return ws.handshake_status();
+  }
+
   void WriteUsers(bool with_bob) {
     json users = json::array();
     users.push_back(
@@ -79,6 +112,7 @@ class AccessTest : public ::testing::Test {
   void StartServer(std::vector<std::string> extra = {}) {
     std::vector<std::string> args = {"--port",       "0",
                                      "--cache",      (dir_ / "cache").string(),
+                                     "--state-dir",  (dir_ / "state").string(),
                                      "--data",       (dir_ / "data").string(),
                                      "--token",      kAdmin,
                                      "--users-file", (dir_ / "users.json").string(),
@@ -283,6 +317,138 @@ TEST_F(AccessTest, IdleDatasetsAreReleasedRamIsRedividedAndTheyReopenFromTheirCa
     std::error_code ec;
     EXPECT_EQ(fs::last_write_time(path, ec), time) << path << " was rewritten";
   }
+}
+
+constexpr char kCarol[] = "carol-token-0123456789abcdef";
+constexpr char kAlice2[] = "alice-again-token-0123456789";
+
+TEST_F(AccessTest, ExpiryAndRemovalEndLiveConnectionsAndEveryLinkResting) {
+  // carol's token expires a few seconds from now.
+  const auto carol_expiry = std::chrono::system_clock::now() + seconds(4);
+  const std::time_t t = std::chrono::system_clock::to_time_t(carol_expiry);
+  char expires[32];
+  std::strftime(expires, sizeof expires, "%Y-%m-%dT%H:%M:%SZ", std::gmtime(&t));
+  json carol = UserEntry("carol", kCarol, "bob");
+  carol["expires"] = expires;
+  WriteUsersJson({UserEntry("alice", kAlice, "alice"), carol});
+  StartServer();
+  const auto all = List(kAdmin);
+  const std::string a = all.at("alice.tif"), b = all.at("bob.tif");
+
+  // alice: a session, a share link with a guest in it, a view link, a stream.
+  WsClient alice;
+  const std::string view = SaveView(alice, kAlice, a);
+  ASSERT_FALSE(view.empty());
+  alice.Send(json{{"type", "share_create"}, {"role", "viewer"}}.dump());
+  auto link = ReadEvent(alice, "share_created");
+  ASSERT_TRUE(link.has_value());
+  const std::string share = (*link)["token"];
+  WsClient guest;
+  ASSERT_EQ(guest.Connect(server_.port(), "/ws?share=" + share), "");
+  guest.Send(json{{"type", "hello"}, {"protocol", 1}}.dump());
+  ASSERT_TRUE(ReadEvent(guest, "opened").has_value());
+  auto created = Fetch(server_.port(), http::verb::post, "/api/datasets?token=" + std::string(kAlice),
+                       {}, R"({"size":[8,8,4],"channels":1,"dtype":"uint16"})");
+  ASSERT_EQ(created.status, 201);
+  const std::string stream = json::parse(created.body)["id"];
+  EXPECT_EQ(ConnectStatus("/ws?view=" + view), 101);
+
+  // carol's token expires while she is connected: her connection ends (4005).
+  WsClient carol_ws;
+  auto opened = Open(carol_ws, kCarol, b);
+  ASSERT_TRUE(opened.has_value());
+  ASSERT_EQ((*opened)["type"], "opened");
+  const auto closed = carol_ws.ReadUntilClose(nullptr, seconds(15));
+  EXPECT_EQ(closed, 4005);
+  EXPECT_GE(std::chrono::system_clock::now(), carol_expiry - seconds(1));
+
+  // alice is removed by a reload: her connection, her guest, her links all end.
+  WriteUsersJson(json::array({carol}));
+  ASSERT_TRUE(ReloadUntil(kAlice, 401));
+  EXPECT_EQ(alice.ReadUntilClose(nullptr, seconds(10)), 4005);
+  EXPECT_EQ(guest.ReadUntilClose(nullptr, seconds(10)), 4005);
+  EXPECT_EQ(ConnectStatus("/ws?share=" + share), 401);
+  EXPECT_EQ(ConnectStatus("/ws?view=" + view), 401);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/datasets?share=" + share).status, 401);
+
+  // A new user named alice inherits nothing: not the view link, not the stream.
+  WriteUsersJson({UserEntry("alice", kAlice2, "alice"), carol});
+  ASSERT_TRUE(ReloadUntil(kAlice2, 200));
+  EXPECT_EQ(ConnectStatus("/ws?view=" + view), 401);
+  auto mine = Get("/api/views", kAlice2);
+  ASSERT_EQ(mine.status, 200);
+  EXPECT_EQ(json::parse(mine.body), json::array());
+  EXPECT_EQ(Get("/api/datasets/" + stream, kAlice2).status, 404);
+  EXPECT_EQ(Get("/api/datasets/" + a, kAlice2).status, 200);  // Her folder is hers again.
+  // The admin still sees the stream: nothing stored is lost.
+  EXPECT_EQ(Get("/api/datasets/" + stream, kAdmin).status, 200);
+}
+
+TEST_F(AccessTest, AViewLinkOpensOnlyWhileItsMakerMaySeeTheDataset) {
+  WriteUsersJson(json::array({UserEntry("alice", kAlice, "alice")}));
+  StartServer();
+  const auto all = List(kAdmin);
+  const std::string a = all.at("alice.tif");
+  WsClient alice;
+  const std::string view = SaveView(alice, kAlice, a);
+  ASSERT_FALSE(view.empty());
+  alice.Close();
+  EXPECT_EQ(ConnectStatus("/ws?view=" + view), 101);
+  // Her folder changes: the link no longer opens (though the user still exists).
+  WriteUsersJson(json::array({UserEntry("alice", kAlice, "alice2")}));
+  ASSERT_TRUE(ReloadUntil(kAlice, 200));
+  int status = 101;
+  for (int i = 0; i < 100 && status == 101; ++i) {
+    status = ConnectStatus("/ws?view=" + view);
+    if (status == 101) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  EXPECT_EQ(status, 401);
+  // Granted again: it opens again (the link itself was never changed).
+  WriteUsersJson(json::array({UserEntry("alice", kAlice, "alice")}));
+  ASSERT_EQ(kill(server_.pid(), SIGHUP), 0);
+  for (int i = 0; i < 100 && status != 101; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(25));
+    status = ConnectStatus("/ws?view=" + view);
+  }
+  EXPECT_EQ(status, 101);
+}
+
+TEST_F(AccessTest, ReloadsAreValidatedLikeStartUp) {
+  WriteUsersJson(json::array({UserEntry("alice", kAlice, "alice")}));
+  StartServer();
+  // A user named like the admin token's user: refused at start-up, so refused on reload.
+  WriteUsersJson({UserEntry("admin", kBob, "bob"), UserEntry("alice", kAlice, "alice")});
+  ASSERT_EQ(kill(server_.pid(), SIGHUP), 0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  EXPECT_EQ(Get("/api/datasets", kBob).status, 401);
+  EXPECT_EQ(Get("/api/datasets", kAlice).status, 200);
+  // A user with the admin's token: refused too.
+  WriteUsersJson(json::array({UserEntry("mallory", kAdmin, "bob")}));
+  ASSERT_EQ(kill(server_.pid(), SIGHUP), 0);
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  EXPECT_EQ(Get("/api/datasets", kAlice).status, 200);
+  std::ifstream log(dir_ / "server.log");
+  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  EXPECT_NE(text.find("keeping the users in force: a user is named \"admin\""), std::string::npos);
+  EXPECT_NE(text.find("has the --token's token"), std::string::npos);
+}
+
+TEST_F(AccessTest, OnlyAdminsFeedOrFinishTheDemo) {
+  StartServer({"--demo", "--demo-size", "32,32,16", "--demo-rate", "1"});
+  const std::string demo = "demospecimen";
+  EXPECT_EQ(Get("/api/datasets/" + demo, kAlice).status, 200);  // Everyone may look at it.
+  const std::string plane(32 * 32 * 2, '\0');
+  auto put = Fetch(server_.port(), http::verb::put,
+                   "/api/datasets/" + demo + "/slabs?z=0&depth=1&channel=0&token=" + kAlice,
+                   {{"Content-Type", "application/octet-stream"}}, plane);
+  EXPECT_EQ(put.status, 403) << put.body;
+  auto finish = Fetch(server_.port(), http::verb::post,
+                      "/api/datasets/" + demo + "/finish?token=" + std::string(kAlice));
+  EXPECT_EQ(finish.status, 403) << finish.body;
+  EXPECT_EQ(json::parse(Get("/api/datasets/" + demo, kAdmin).body)["state"], "streaming");
+  finish = Fetch(server_.port(), http::verb::post,
+                 "/api/datasets/" + demo + "/finish?token=" + std::string(kAdmin));
+  EXPECT_EQ(finish.status, 200) << finish.body;
 }
 
 }  // namespace

@@ -526,5 +526,104 @@ TEST_F(HostileTest, ConcurrentUploadsToOneDatasetAllLand) {
   EXPECT_LE(StoredMipError(id, v), 1);
 }
 
+// Small per-principal limits, so that reaching them is cheap.
+class LimitsTest : public HostileTest {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--max-sessions-per-user",    "2", "--max-streams-per-user",   "1",
+            "--view-links-per-minute",    "2", "--max-view-links-per-user", "3",
+            "--max-screenshots-in-flight", "1", "--max-messages-per-second", "20"};
+  }
+};
+
+TEST_F(LimitsTest, OnePrincipalCannotTakeWhatEveryoneShares) {
+  const TestVolume v;
+  const std::string id = StreamTestVolume(v);  // Finished below: it does not count as open.
+  ASSERT_EQ(Fetch(server_.port(), http::verb::post, Auth("/api/datasets/" + id + "/finish")).status,
+            200);
+  // Streams: one unfinished stream per user; the next is 429 with Retry-After.
+  EXPECT_FALSE(StreamTestVolume(v, /*send=*/false).empty());
+  auto refused = Fetch(server_.port(), http::verb::post, Auth("/api/datasets"), {},
+                       R"({"size":[8,8,4],"channels":1,"dtype":"uint16"})");
+  EXPECT_EQ(refused.status, 429) << refused.body;
+  EXPECT_NE(refused.body.find("unfinished streams"), std::string::npos) << refused.body;
+  EXPECT_FALSE(refused.headers["Retry-After"].empty());
+
+  // Sessions: two per user; the third connection is refused with 1013.
+  WsClient first, second, third;
+  ASSERT_TRUE(ConnectWs(first));
+  OpenOrthoMip(first, id, v, 300);
+  ASSERT_TRUE(ConnectWs(second));
+  ASSERT_TRUE(second.Send(json{{"type", "hello"}, {"protocol", 1}}.dump()));
+  ASSERT_TRUE(ReadEvent(second, "welcome").has_value());
+  ASSERT_TRUE(ConnectWs(third));
+  auto error = ReadEvent(third, "error");
+  ASSERT_TRUE(error.has_value());
+  EXPECT_EQ((*error)["message"], "too many sessions for this user");
+  EXPECT_EQ((*error)["fatal"], true);
+  EXPECT_EQ(third.ReadUntilClose(), 1013);
+
+  // View links: two a minute.
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(first.Send(json{{"type", "view_save"}}.dump()));
+  int saved = 0;
+  std::string limit_error;
+  for (int i = 0; i < 3; ++i) {
+    std::optional<json> event;
+    for (;;) {
+      auto m = first.Read(seconds(30));
+      ASSERT_TRUE(m.ok);
+      if (m.binary) {
+        testing::Ack(first, DecodeFrame(m.data)->header.frame_id);
+        continue;
+      }
+      event = json::parse(m.data);
+      if ((*event)["type"] == "view_saved" || (*event)["type"] == "error") break;
+    }
+    if ((*event)["type"] == "view_saved") {
+      ++saved;
+    } else {
+      limit_error = (*event)["message"];
+    }
+  }
+  EXPECT_EQ(saved, 2);
+  EXPECT_NE(limit_error.find("too many view links saved in a minute"), std::string::npos)
+      << limit_error;
+
+  // Screenshots: one in flight per participant.
+  ASSERT_TRUE(first.Send(json{{"type", "screenshot"}, {"view", "3d"}, {"scale", 2}, {"id", 1}}.dump()));
+  ASSERT_TRUE(first.Send(json{{"type", "screenshot"}, {"view", "3d"}, {"scale", 2}, {"id", 2}}.dump()));
+  auto shot_error = ReadEvent(first, "error");
+  ASSERT_TRUE(shot_error.has_value());
+  EXPECT_EQ((*shot_error)["request"], "screenshot");
+  EXPECT_NE((*shot_error)["message"].get<std::string>().find("too many screenshots"),
+            std::string::npos);
+  EXPECT_TRUE(ReadFrameUntil(first, [](const Frame& f) {
+                return f.header.tier == protocol::FrameTier::kScreenshot;
+              }).has_value());
+
+  // A message flood: dropped beyond the rate (one error), the connection and the others fine;
+  // hellos beyond their own rate do not make the server re-send the participant list.
+  for (int i = 0; i < 200; ++i) {
+    ASSERT_TRUE(second.Send(json{{"type", "ping"}, {"t", i}}.dump()));
+  }
+  ASSERT_TRUE(second.Send(json{{"type", "ack"}, {"frame", 1}}.dump()));
+  std::this_thread::sleep_for(std::chrono::milliseconds(2500));  // The bucket refills.
+  ASSERT_TRUE(second.Send(json{{"type", "ping"}, {"t", -1}}.dump()));
+  int pongs = 0, errors = 0;
+  for (;;) {
+    auto m = second.Read(seconds(30));
+    ASSERT_TRUE(m.ok);
+    const json event = json::parse(m.data);
+    if (event["type"] == "pong" && event["t"] == -1) break;
+    pongs += event["type"] == "pong";
+    errors += event["type"] == "error";
+  }
+  EXPECT_GE(pongs, 40);  // The burst (twice the rate) and what refilled meanwhile.
+  EXPECT_LT(pongs, 100);
+  EXPECT_EQ(errors, 1);
+  uint64_t version = 0;
+  EXPECT_TRUE(CameraGetsAFrame(first, 1, &version));
+}
+
 }  // namespace
 }  // namespace octoscope::app

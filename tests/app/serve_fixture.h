@@ -60,9 +60,12 @@ class ServeFixture : public ::testing::Test {
             ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
-    std::vector<std::string> args = {"--port",   "0",    "--cache",  (dir_ / "cache").string(),
-                                     "--token",  kToken, "--ram-mb", "256",
-                                     "--device", "cpu"};
+    std::vector<std::string> args = {"--port",      "0",
+                                     "--cache",     (dir_ / "cache").string(),
+                                     "--state-dir", (dir_ / "state").string(),
+                                     "--token",     kToken,
+                                     "--ram-mb",    "256",
+                                     "--device",    "cpu"};
     for (const std::string& a : ExtraArgs()) args.push_back(a);
     ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY, args, (dir_ / "server.log").string()))
         << server_.error();

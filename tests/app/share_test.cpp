@@ -161,6 +161,21 @@ class ShareTest : public ::testing::Test {
     ws.Send(Viewport(w, h).dump());
   }
 
+  // The owner opens `id` (OpenOrthoMip at 40 x 30) and creates a `role` link; its token.
+  std::string OpenAndShare(WsClient& owner, const std::string& id, const TestVolume& v,
+                           const std::string& role) {
+    ConnectOwner(owner);
+    OpenOrthoMip(owner, id, v, 40, 30);
+    return CreateShare(owner, role).value("token", "");
+  }
+
+  // A guest joins through share link `token`: hello, then the session's `opened`.
+  void JoinAsGuest(WsClient& guest, const std::string& token, const std::string& name) {
+    ASSERT_EQ(ConnectShare(guest, token), "");
+    guest.Send(Hello(name).dump());
+    ASSERT_TRUE(ReadEvent(guest, "opened").has_value());
+  }
+
   json CreateShare(WsClient& owner, const std::string& role) {
     owner.Send(json{{"type", "share_create"}, {"role", role}}.dump());
     auto created = ReadEvent(owner, "share_created");
@@ -523,15 +538,23 @@ TEST_F(ShareTest, ACorruptViewFileIsAClearErrorNotACrash) {
     EXPECT_EQ(rest.status, 500) << rest.body;
     EXPECT_NE(rest.body.find("is not a valid view document"), std::string::npos) << rest.body;
     EXPECT_NE(rest.body.find(id), std::string::npos) << rest.body;
+    // As a credential it opens nothing: refused at the upgrade, saying why.
     WsClient ws;
-    ASSERT_EQ(ws.Connect(server_.port(), "/ws?view=" + id), "");
-    ws.Send(Hello().dump());
-    auto error = ReadEvent(ws, "error");
+    EXPECT_NE(ws.Connect(server_.port(), "/ws?view=" + id), "");
+    EXPECT_EQ(ws.handshake_status(), 401);
+    EXPECT_NE(ws.handshake_body().find("is not a valid view document"), std::string::npos)
+        << ws.handshake_body();
+    // Opened by a user in a session, the document's problem is the error.
+    WsClient user;
+    ASSERT_EQ(user.Connect(server_.port(), Auth("/ws")), "");
+    user.Send(Hello().dump());
+    ASSERT_TRUE(ReadEvent(user, "welcome").has_value());
+    user.Send(json{{"type", "open"}, {"view", id}}.dump());
+    auto error = ReadEvent(user, "error");
     ASSERT_TRUE(error.has_value());
     EXPECT_NE((*error)["message"].get<std::string>().find("not a valid view document"),
               std::string::npos);
-    EXPECT_EQ((*error)["fatal"], true);
-    EXPECT_EQ(ws.ReadUntilClose(), 4004);
+    EXPECT_EQ((*error)["fatal"], false);
   }
   EXPECT_EQ(
       Fetch(server_.port(), http::verb::get, Auth("/api/views/CCCCCCCCCCCCCCCCCCCCCC")).status,
@@ -628,6 +651,153 @@ TEST_F(ShareTest, TheOwnerReattachesWithItsResumeKey) {
   auto fresh = ReadEvent(stranger, "welcome");
   ASSERT_TRUE(fresh.has_value());
   EXPECT_NE((*fresh)["session"], session);
+}
+
+TEST_F(ShareTest, AViewLinkMadeThroughAShareLinkLivesAndDiesWithIt) {
+  ASSERT_TRUE(StartServer());
+  const TestVolume v;
+  const std::string id = StreamTestVolume(v);
+  WsClient owner;
+  const std::string share = OpenAndShare(owner, id, v, "viewer");
+  // A guest who joined through the link saves the view.
+  WsClient guest;
+  JoinAsGuest(guest, share, "guest");
+  guest.Send(json{{"type", "view_save"}}.dump());
+  auto saved = ReadEvent(guest, "view_saved");
+  ASSERT_TRUE(saved.has_value());
+  const std::string view = (*saved)["id"];
+  // While the share link lives, the view link opens — a session that cannot be shared on.
+  WsClient fork;
+  ASSERT_EQ(fork.Connect(server_.port(), "/ws?view=" + view), "");
+  fork.Send(Hello().dump());
+  ASSERT_TRUE(ReadEvent(fork, "opened").has_value());
+  fork.Send(json{{"type", "share_create"}, {"role", "controller"}}.dump());
+  auto refused = ReadEvent(fork, "error");
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_NE((*refused)["message"].get<std::string>().find("cannot be shared further"),
+            std::string::npos)
+      << refused->dump();
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/views/" + view + "?view=" + view).status,
+            200);
+  // The share link is revoked: everything resting on it ends.
+  owner.Send(json{{"type", "share_revoke"}, {"token", share}}.dump());
+  EXPECT_EQ(guest.ReadUntilClose(), 4001);
+  EXPECT_EQ(fork.ReadUntilClose(), 4005);
+  WsClient again;
+  EXPECT_NE(again.Connect(server_.port(), "/ws?view=" + view), "");
+  EXPECT_EQ(again.handshake_status(), 401);
+  EXPECT_NE(again.handshake_body().find("share link"), std::string::npos)
+      << again.handshake_body();
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/views/" + view + "?view=" + view).status,
+            401);
+  // The owner still sees it in the list of its view links, marked as not opening.
+  auto listed = Fetch(server_.port(), http::verb::get, Auth("/api/views"));
+  ASSERT_EQ(listed.status, 200) << listed.body;
+  const json list = json::parse(listed.body);
+  ASSERT_EQ(list.size(), 1u) << list.dump();
+  EXPECT_EQ(list[0]["id"], view);
+  EXPECT_EQ(list[0]["made_through"], "share");
+  EXPECT_EQ(list[0]["valid"], false);
+  // And across a restart (share links do not survive one) it stays dead.
+  owner.Close();
+  ASSERT_EQ(server_.Stop(), 0);
+  ASSERT_TRUE(StartServer());
+  WsClient after;
+  EXPECT_NE(after.Connect(server_.port(), "/ws?view=" + view), "");
+  EXPECT_EQ(after.handshake_status(), 401);
+}
+
+TEST_F(ShareTest, AShareLinkAdmitsToTheDatasetItWasMadeForOnly) {
+  ASSERT_TRUE(StartServer());
+  const TestVolume v;
+  const std::string a = StreamTestVolume(v);
+  const std::string b = StreamTestVolume(v);
+  WsClient owner;
+  const std::string share = OpenAndShare(owner, a, v, "controller");
+  WsClient controller;
+  JoinAsGuest(controller, share, "carol");
+  // Another dataset the owner may see is, through the link, like one that does not exist.
+  controller.Send(json{{"type", "open"}, {"dataset", b}}.dump());
+  auto refused = ReadEvent(controller, "error");
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_EQ((*refused)["message"], "no dataset '" + b + "'");
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/datasets/" + b + "?share=" + share).status,
+            404);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/datasets/" + a + "?share=" + share).status,
+            200);
+  const json listed = json::parse(
+      Fetch(server_.port(), http::verb::get, "/api/datasets?share=" + share).body);
+  ASSERT_EQ(listed.size(), 1u);
+  EXPECT_EQ(listed[0]["id"], a);
+  // Its own dataset it may open again (e.g. with another state).
+  controller.Send(json{{"type", "open"}, {"dataset", a}}.dump());
+  auto reopened = ReadEvent(controller, "opened");
+  ASSERT_TRUE(reopened.has_value());
+  EXPECT_EQ((*reopened)["dataset"]["id"], a);
+  // The owner moves the session to another dataset: the link (made for a) ends with it.
+  owner.Send(json{{"type", "open"}, {"dataset", b}}.dump());
+  EXPECT_EQ(controller.ReadUntilClose(), 4001);
+  WsClient late;
+  EXPECT_NE(ConnectShare(late, share), "");
+  EXPECT_EQ(late.handshake_status(), 401);
+  // The owner is told (after the `shares` of the link's creation).
+  std::optional<json> shares;
+  do {
+    shares = ReadEvent(owner, "shares");
+    ASSERT_TRUE(shares.has_value());
+  } while (!(*shares)["shares"].empty());
+}
+
+TEST_F(ShareTest, OwnersListExpireAndDeleteTheirViewLinks) {
+  ASSERT_TRUE(StartServer());
+  const TestVolume v;
+  const std::string id = StreamTestVolume(v);
+  WsClient owner;
+  ConnectOwner(owner);
+  OpenOrthoMip(owner, id, v, 40, 30);
+  owner.Send(json{{"type", "view_save"}, {"ttl_s", 3600}}.dump());
+  auto expiring = ReadEvent(owner, "view_saved");
+  ASSERT_TRUE(expiring.has_value());
+  ASSERT_TRUE((*expiring)["expires"].is_string()) << expiring->dump();
+  owner.Send(json{{"type", "view_save"}}.dump());
+  auto forever = ReadEvent(owner, "view_saved");
+  ASSERT_TRUE(forever.has_value());
+  EXPECT_TRUE((*forever)["expires"].is_null());
+  auto listed = Fetch(server_.port(), http::verb::get, Auth("/api/views"));
+  ASSERT_EQ(listed.status, 200) << listed.body;
+  json list = json::parse(listed.body);
+  ASSERT_EQ(list.size(), 2u) << list.dump();
+  for (const json& entry : list) {
+    EXPECT_EQ(entry["dataset"], id);
+    EXPECT_EQ(entry["dataset_name"], "share stream");
+    EXPECT_EQ(entry["made_through"], "user");
+    EXPECT_EQ(entry["owner"], "admin");
+    EXPECT_EQ(entry["valid"], true);
+    EXPECT_EQ(entry["url"], "http://127.0.0.1:" + std::to_string(server_.port()) +
+                                "/?view=" + entry["id"].get<std::string>());
+    if (entry["id"] == (*expiring)["id"]) {
+      EXPECT_EQ(entry["expires"], (*expiring)["expires"]);
+    }
+  }
+  // Deleted: it no longer opens, nor is it listed or read.
+  const std::string gone = (*forever)["id"];
+  EXPECT_EQ(Fetch(server_.port(), http::verb::delete_, Auth("/api/views/" + gone)).status, 204);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::delete_, Auth("/api/views/" + gone)).status, 404);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, Auth("/api/views/" + gone)).status, 404);
+  WsClient dead;
+  EXPECT_NE(dead.Connect(server_.port(), "/ws?view=" + gone), "");
+  EXPECT_EQ(dead.handshake_status(), 401);
+  list = json::parse(Fetch(server_.port(), http::verb::get, Auth("/api/views")).body);
+  ASSERT_EQ(list.size(), 1u);
+  EXPECT_EQ(list[0]["id"], (*expiring)["id"]);
+  EXPECT_FALSE(fs::exists(dir_ / "state" / "views" / (gone + ".json")));
+  // A share link lists and deletes nothing.
+  const std::string share = CreateShare(owner, "viewer")["token"];
+  EXPECT_EQ(Fetch(server_.port(), http::verb::get, "/api/views?share=" + share).status, 403);
+  EXPECT_EQ(Fetch(server_.port(), http::verb::delete_,
+                  "/api/views/" + list[0]["id"].get<std::string>() + "?share=" + share)
+                .status,
+            403);
 }
 
 }  // namespace

@@ -329,11 +329,11 @@ class TableAuthenticator : public Authenticator {
     const RequestCredentials c = ReadCredentials(authorization, raw_query);
     for (const std::string& t : c.tokens) {
       if (t == "alice-token-0123456789")
-        return Principal{Principal::Kind::kUser, "alice", false, ""};
-      if (t == "root-token-0123456789") return Principal{Principal::Kind::kUser, "root", true, ""};
+        return Principal{Principal::Kind::kUser, "alice", false, "", ""};
+      if (t == "root-token-0123456789") return Principal{Principal::Kind::kUser, "root", true, "", ""};
     }
-    if (c.share == "s123") return Principal{Principal::Kind::kShare, "", false, "s123"};
-    if (c.view == "v456") return Principal{Principal::Kind::kView, "", false, "v456"};
+    if (c.share == "s123") return Principal{Principal::Kind::kShare, "", false, "s123", ""};
+    if (c.view == "v456") return Principal{Principal::Kind::kView, "", false, "v456", ""};
     return std::nullopt;
   }
   std::string RefusalMessage(std::string_view authorization,

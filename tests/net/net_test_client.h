@@ -303,6 +303,8 @@ class WsClient {
   }
 
   int handshake_status() const { return static_cast<int>(handshake_response_.result_int()); }
+  // The body of a refused handshake (the server's JSON error).
+  const std::string& handshake_body() const { return handshake_response_.body(); }
 
   // Writes one message; false on error or timeout.
   bool Send(std::string_view text, bool binary = false) {

@@ -415,7 +415,8 @@ TEST(WsMessagesSharingTest, ParsesTheSharingMessages) {
   EXPECT_EQ(role.participant, "p2");
   EXPECT_EQ(role.role, Role::kViewer);
   EXPECT_EQ(ParseAs<KickMessage>(R"({"type":"kick","participant":"p7"})").participant, "p7");
-  ParseAs<ViewSaveMessage>(R"({"type":"view_save"})");
+  EXPECT_FALSE(ParseAs<ViewSaveMessage>(R"({"type":"view_save"})").ttl_s);
+  EXPECT_EQ(ParseAs<ViewSaveMessage>(R"({"type":"view_save","ttl_s":3600})").ttl_s, 3600);
 }
 
 TEST(WsMessagesSharingTest, BadSharingMessagesAreRefusedNamingTheField) {
@@ -442,6 +443,8 @@ TEST(WsMessagesSharingTest, BadSharingMessagesAreRefusedNamingTheField) {
        "participant_role.participant: is empty"},
       {R"({"type":"kick"})", "kick", "kick.participant: missing"},
       {R"({"type":"view_save","id":1})", "view_save", "unknown key \"id\" in view_save"},
+      {R"({"type":"view_save","ttl_s":59})", "view_save", "view_save.ttl_s"},
+      {R"({"type":"view_save","ttl_s":"1h"})", "view_save", "view_save.ttl_s"},
   };
   for (const Bad& b : bad) {
     std::string type = "stale";
@@ -472,8 +475,25 @@ TEST(WsMessagesSharingTest, SharingEventsAreTheDocumentedJson) {
   EXPECT_EQ(shares["shares"][0]["participants"], 2);
   EXPECT_TRUE(shares["shares"][0]["expires"].is_null());
   EXPECT_EQ(json::parse(ViewSavedEvent("id", "u")),
-            json::parse(R"({"type":"view_saved","id":"id","url":"u"})"));
+            json::parse(R"({"type":"view_saved","id":"id","url":"u","expires":null})"));
+  EXPECT_EQ(json::parse(ViewSavedEvent("id", "u", 1764072000))["expires"], "2025-11-25T12:00:00Z");
   EXPECT_EQ(IsoUtc(1764072000), "2025-11-25T12:00:00Z");
+}
+
+TEST(GrantRefTest, TextRoundTripsAndIsStrict) {
+  for (const GrantRef& g : {GrantRef{GrantRef::Kind::kUser, "u0123456789abcdef"},
+                            GrantRef{GrantRef::Kind::kShare, "0a1b"},
+                            GrantRef{GrantRef::Kind::kView, "AAAAAAAAAAAAAAAAAAAA_-"},
+                            GrantRef{GrantRef::Kind::kUser, "alice.b"}}) {
+    auto back = ParseGrantRef(GrantRefText(g));
+    ASSERT_TRUE(back.ok()) << GrantRefText(g);
+    EXPECT_EQ(*back, g);
+  }
+  EXPECT_EQ(GrantRefText({GrantRef::Kind::kShare, "x"}), "share:x");
+  for (const char* bad : {"", "user", "user:", "admin:x", "view:a/b", "share: x", "USER:x",
+                          "user:0123456789012345678901234567890123456789012345678901234567890123456"}) {
+    EXPECT_FALSE(ParseGrantRef(bad).ok()) << bad;
+  }
 }
 
 TEST(WsMessagesSharingTest, ViewLinksRoundTripAndAreReadStrictly) {
@@ -485,11 +505,51 @@ TEST(WsMessagesSharingTest, ViewLinksRoundTripAndAreReadStrictly) {
       "{}", render::DefaultRenderParams(1, volume::DataType::kUint16, render::RenderMode::kMip));
   ASSERT_TRUE(params.ok());
   const ViewState full{*state->camera, *params, {1, 2, 3}, ViewId::kX};
-  const std::string text = ViewLinkJson("embryo", full);
+  const ViewLinkGrant grant{{GrantRef::Kind::kShare, "5f3a9c01"},
+                            {GrantRef::Kind::kUser, "u0123456789abcdef"},
+                            1764072000,
+                            1764075600};
+  const std::string text = ViewLinkJson("embryo", full, grant);
+  const json doc = json::parse(text);
+  EXPECT_EQ(doc["version"], 2);
+  EXPECT_EQ(doc["creator"], "share:5f3a9c01");
+  EXPECT_EQ(doc["owner"], "user:u0123456789abcdef");
+  EXPECT_EQ(doc["created"], "2025-11-25T12:00:00Z");
+  EXPECT_EQ(doc["expires"], "2025-11-25T13:00:00Z");
   auto link = ParseViewLink(text);
   ASSERT_TRUE(link.ok()) << link.status().ToString();
   EXPECT_EQ(link->dataset, "embryo");
   EXPECT_EQ(link->state.layout->maximized, ViewId::kX);
+  ASSERT_TRUE(link->grant.has_value());
+  EXPECT_EQ(link->grant->creator, grant.creator);
+  EXPECT_EQ(link->grant->owner, grant.owner);
+  EXPECT_EQ(link->grant->created_unix_s, grant.created_unix_s);
+  EXPECT_EQ(link->grant->expires_unix_s, grant.expires_unix_s);
+  // No expiry: null.
+  auto forever = ParseViewLink(ViewLinkJson("embryo", full, {grant.owner, grant.owner, 0, {}}));
+  ASSERT_TRUE(forever.ok()) << forever.status().ToString();
+  EXPECT_FALSE(forever->grant->expires_unix_s.has_value());
+  // Version 1 (before creators were recorded) still reads, with no grant.
+  json v1 = doc;
+  for (const char* key : {"creator", "owner", "created", "expires"}) v1.erase(key);
+  v1["version"] = 1;
+  auto legacy = ParseViewLink(v1.dump());
+  ASSERT_TRUE(legacy.ok()) << legacy.status().ToString();
+  EXPECT_FALSE(legacy->grant.has_value());
+  // Strict: keys of one version in the other, bad grants, an owner that is not a user.
+  json mixed = v1;
+  mixed["creator"] = "user:x";
+  EXPECT_FALSE(ParseViewLink(mixed.dump()).ok());
+  for (const auto& [key, value] : std::vector<std::pair<std::string, json>>{
+           {"creator", "nobody:x"}, {"creator", "user:"}, {"creator", "user:a b"},
+           {"owner", "share:abc"}, {"created", "yesterday"}, {"expires", 5}, {"version", 3}}) {
+    json bad = doc;
+    bad[key] = value;
+    auto parsed = ParseViewLink(bad.dump());
+    ASSERT_FALSE(parsed.ok()) << key;
+    EXPECT_NE(parsed.status().message().find(key), std::string::npos)
+        << parsed.status().message();
+  }
   EXPECT_FALSE(ParseViewLink(R"({"version":1,"dataset":"e"})").ok());
   EXPECT_FALSE(ParseViewLink(R"({"version":2,"dataset":"e","state":{}})").ok());
   EXPECT_FALSE(ParseViewLink(R"({"version":1,"dataset":"E!","state":{}})").ok());

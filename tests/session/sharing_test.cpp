@@ -3,8 +3,10 @@
 // release — through real sessions whose sinks record what their clients would receive.
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <mutex>
 #include <nlohmann/json.hpp>
+#include <set>
 #include <thread>
 
 #include "session/session_registry.h"
@@ -212,17 +214,210 @@ TEST_F(SharingTest, TheSessionLimitParksAndReleases) {
 
 TEST_F(SharingTest, ExpiredAndUnknownLinksAreRefused) {
   auto session = *registry_.Create(context_);
-  registry_.AddShare(std::string(32, 'a'), session, Role::kViewer,
+  registry_.AddShare(std::string(32, 'a'), "ida", session, Role::kViewer,
                      std::chrono::system_clock::now() - std::chrono::seconds(1));
-  registry_.AddShare(std::string(32, 'b'), session, Role::kController, std::nullopt);
+  registry_.AddShare(std::string(32, 'b'), "idb", session, Role::kController, std::nullopt);
   EXPECT_FALSE(registry_.FindShare(std::string(32, 'a')).has_value());
+  EXPECT_FALSE(registry_.FindShareById("ida").has_value());
   EXPECT_TRUE(registry_.FindShare(std::string(32, 'b')).has_value());
+  EXPECT_EQ(registry_.FindShare(std::string(32, 'b'))->id, "idb");
+  EXPECT_EQ(registry_.FindShareById("idb")->session, session);
   EXPECT_FALSE(registry_.FindShare("").has_value());
+  EXPECT_FALSE(registry_.FindShareById(std::string(32, 'b')).has_value());
   session->Close();
   EXPECT_FALSE(registry_.FindShare(std::string(32, 'b')).has_value());
+  EXPECT_FALSE(registry_.FindShareById("idb").has_value());
   EXPECT_TRUE(SecretsEqual("abc", "abc"));
   EXPECT_FALSE(SecretsEqual("abc", "abd"));
   EXPECT_FALSE(SecretsEqual("abc", "abcd"));
+}
+
+// Grants decided by the test: every grant holds unless listed in `ended`; a share grant has a
+// share link on its chain.
+class FakeGrants : public GrantChecker {
+ public:
+  GrantVerdict Check(const protocol::GrantRef& grant, std::string_view dataset) const override {
+    std::lock_guard<std::mutex> lock(mu_);
+    GrantVerdict v;
+    const std::string text = protocol::GrantRefText(grant);
+    v.holds = ended_.count(text) == 0 && (dataset.empty() || covered_.count(text + "@" + std::string(dataset)) != 0 ||
+                                          covered_.count(text + "@*") != 0);
+    v.reason = ended_.count(text) != 0 ? "token expired" : "not allowed for this dataset";
+    v.via_share = grant.kind == protocol::GrantRef::Kind::kShare;
+    v.owner = {protocol::GrantRef::Kind::kUser, "u1"};
+    return v;
+  }
+  void End(const std::string& grant) {
+    std::lock_guard<std::mutex> lock(mu_);
+    ended_.insert(grant);
+  }
+  void Cover(const std::string& grant_at_dataset) {
+    std::lock_guard<std::mutex> lock(mu_);
+    covered_.insert(grant_at_dataset);
+  }
+
+ private:
+  mutable std::mutex mu_;
+  std::set<std::string> ended_, covered_;
+};
+
+class GrantedSharingTest : public SharingTest {
+ protected:
+  GrantedSharingTest() { context_.grants = &grants_; }
+
+  // A session owned by user u1 with its owner connected and welcomed (sink: owner_sink_).
+  std::shared_ptr<ViewSession> OwnedSession(const ViewSessionOptions& options = {}) {
+    auto session = *registry_.Create(context_, options, {protocol::GrantRef::Kind::kUser, "u1"});
+    owner_sink_ = std::make_shared<RecordingSink>();
+    owner_ = *session->Join(owner_sink_, {Role::kOwner, "alice", ""});
+    Hello(*session, owner_, "alice");
+    return session;
+  }
+
+  FakeGrants grants_;
+  std::shared_ptr<RecordingSink> owner_sink_;
+  std::string owner_;
+};
+
+TEST_F(GrantedSharingTest, AJoinThatRacesARevocationIsRefused) {
+  auto session = OwnedSession();
+  auto owner_sink = owner_sink_;
+  const std::string owner = owner_;
+  session->HandleText(owner, R"({"type":"share_create","role":"controller"})");
+  const std::string token = owner_sink->Last("share_created")["token"];
+  // The upgrade found the link; the owner revokes it before the join lands.
+  auto found = registry_.FindShare(token);
+  ASSERT_TRUE(found.has_value());
+  session->HandleText(owner, json{{"type", "share_revoke"}, {"token", token}}.dump());
+  auto late = session->Join(std::make_shared<RecordingSink>(), {found->role, "", token});
+  ASSERT_FALSE(late.ok());
+  EXPECT_EQ(late.status().code(), StatusCode::kFailedPrecondition);
+  EXPECT_EQ(session->participant_count(), 1u);
+  // A token the session never made is refused the same way.
+  EXPECT_FALSE(session->Join(std::make_shared<RecordingSink>(), {Role::kViewer, "", "x"}).ok());
+}
+
+TEST_F(GrantedSharingTest, GuestsActUnderTheirLinkAndCannotShareOn) {
+  auto session = OwnedSession();
+  auto owner_sink = owner_sink_;
+  const std::string owner = owner_;
+  session->HandleText(owner, R"({"type":"share_create","role":"controller"})");
+  const json created = owner_sink->Last("share_created");
+  ASSERT_FALSE(created.is_null()) << owner_sink->Last("error");
+  const std::string token = created["token"];
+  auto guest_sink = std::make_shared<RecordingSink>();
+  auto guest = *session->Join(guest_sink, {Role::kController, "", token});
+  Hello(*session, guest, "bob");
+  // The link's grant does not cover "other": refused like a dataset that does not exist.
+  session->HandleText(guest, R"({"type":"open","dataset":"other"})");
+  EXPECT_EQ(guest_sink->Last("error")["message"], "no dataset 'other'");
+  // A session owned under a grant with a share link on its chain cannot be shared on.
+  auto forked = *registry_.Create(context_, {}, {protocol::GrantRef::Kind::kShare, "abc"});
+  auto fork_sink = std::make_shared<RecordingSink>();
+  auto fork_owner = *forked->Join(fork_sink, {Role::kOwner, "", ""});
+  forked->HandleText(fork_owner, R"({"type":"share_create","role":"viewer"})");
+  EXPECT_TRUE(fork_sink->Last("share_created").is_null());
+  EXPECT_NE(fork_sink->Last("error")["message"].get<std::string>().find("cannot be shared further"),
+            std::string::npos);
+}
+
+TEST_F(GrantedSharingTest, WhenTheOwnersGrantEndsEveryoneIsClosedWith4005) {
+  auto session = OwnedSession();
+  auto owner_sink = owner_sink_;
+  const std::string owner = owner_;
+  session->HandleText(owner, R"({"type":"share_create","role":"viewer"})");
+  const std::string token = owner_sink->Last("share_created")["token"];
+  auto guest_sink = std::make_shared<RecordingSink>();
+  ASSERT_TRUE(session->Join(guest_sink, {Role::kViewer, "", token}).ok());
+  registry_.Revalidate();
+  EXPECT_EQ(owner_sink->close_code(), 0);
+  grants_.End("user:u1");
+  registry_.Revalidate();
+  EXPECT_EQ(owner_sink->close_code(), 4005);
+  EXPECT_EQ(guest_sink->close_code(), 4005);
+  EXPECT_TRUE(session->closed());
+  EXPECT_FALSE(registry_.FindShare(token).has_value());
+  EXPECT_EQ(registry_.FindByResume(session->resume_key()), nullptr);
+  EXPECT_EQ(registry_.size(), 0u);
+}
+
+TEST_F(GrantedSharingTest, AnExpiredLinkClosesThoseWhoJoinedThroughIt) {
+  auto clock = std::make_shared<std::atomic<int64_t>>(1'800'000'000);
+  ViewSessionOptions options;
+  options.unix_clock = [clock] { return clock->load(); };
+  auto session = OwnedSession(options);
+  auto owner_sink = owner_sink_;
+  const std::string owner = owner_;
+  session->HandleText(owner, R"({"type":"share_create","role":"viewer","ttl_s":60})");
+  session->HandleText(owner, R"({"type":"share_create","role":"viewer"})");
+  ASSERT_EQ(owner_sink->Count("share_created"), 2);
+  const std::string forever = owner_sink->Last("share_created")["token"];
+  const std::string token = owner_sink->Last("shares")["shares"][0]["token"];
+  ASSERT_NE(token, forever);
+  const std::string id = registry_.FindShare(token)->id;
+  auto guest_sink = std::make_shared<RecordingSink>();
+  ASSERT_TRUE(session->Join(guest_sink, {Role::kViewer, "", token}).ok());
+  auto other_sink = std::make_shared<RecordingSink>();
+  ASSERT_TRUE(session->Join(other_sink, {Role::kViewer, "", forever}).ok());
+  ASSERT_TRUE(session->share_state(id).has_value());
+  EXPECT_FALSE(session->share_state("nope").has_value());
+  // Not expired yet: nothing happens.
+  clock->store(1'800'000'059);
+  registry_.Revalidate();
+  EXPECT_EQ(guest_sink->close_code(), 0);
+  // Expired: the link admits nobody, and those who joined through it go with it (4001).
+  clock->store(1'800'000'060);
+  EXPECT_FALSE(session->share_state(id).has_value());
+  EXPECT_FALSE(session->Join(std::make_shared<RecordingSink>(), {Role::kViewer, "", token}).ok());
+  registry_.Revalidate();
+  EXPECT_EQ(guest_sink->close_code(), 4001);
+  EXPECT_EQ(other_sink->close_code(), 0);
+  EXPECT_FALSE(registry_.FindShare(token).has_value());
+  EXPECT_EQ(owner_sink->Last("shares")["shares"].size(), 1u);
+}
+
+TEST_F(GrantedSharingTest, OneOwnerHoldsAtMostItsShareOfSessions) {
+  SessionLimits limits = Limits();
+  limits.max_sessions = 10;
+  limits.max_sessions_per_owner = 2;
+  SessionRegistry registry(&timers_, limits);
+  const protocol::GrantRef alice{protocol::GrantRef::Kind::kUser, "ua"};
+  const protocol::GrantRef bob{protocol::GrantRef::Kind::kUser, "ub"};
+  std::vector<std::shared_ptr<ViewSession>> held;
+  for (int i = 0; i < 2; ++i) {
+    auto s = registry.Create(context_, {}, alice);
+    ASSERT_TRUE(s.ok());
+    ASSERT_TRUE((*s)->Join(std::make_shared<RecordingSink>(), {Role::kOwner, "", ""}).ok());
+    held.push_back(*s);
+  }
+  auto third = registry.Create(context_, {}, alice);
+  ASSERT_FALSE(third.ok());
+  EXPECT_EQ(third.status().message(), "too many sessions for this user");
+  // Others are not affected.
+  EXPECT_TRUE(registry.Create(context_, {}, bob).ok());
+}
+
+TEST_F(GrantedSharingTest, MessageFloodsAreDroppedWithOneErrorASecondButAcksPass) {
+  ViewSessionOptions options;
+  options.messages_per_second = 10;
+  options.message_burst = 20;
+  options.hello_burst = 2;
+  options.hellos_per_second = 0.001;
+  auto session = *registry_.Create(context_, options, {protocol::GrantRef::Kind::kUser, "u1"});
+  auto sink = std::make_shared<RecordingSink>();
+  auto p = *session->Join(sink, {Role::kOwner, "alice", ""});
+  for (int i = 0; i < 100; ++i) {
+    session->HandleText(p, json{{"type", "ping"}, {"t", i}}.dump());
+  }
+  EXPECT_EQ(sink->Count("pong"), 20);
+  EXPECT_EQ(sink->Count("error"), 1);
+  EXPECT_NE(sink->Last("error")["message"].get<std::string>().find("too many messages"),
+            std::string::npos);
+  EXPECT_EQ(sink->Last("error")["fatal"], false);
+  // Acknowledgements are never dropped (they cost nothing and a lost one stalls frames).
+  for (int i = 0; i < 50; ++i) session->HandleText(p, R"({"type":"ack","frame":1})");
+  EXPECT_EQ(sink->Count("error"), 1);
+  EXPECT_EQ(sink->close_code(), 0);
 }
 
 }  // namespace

@@ -34,6 +34,11 @@ protocol::ViewState TestState() {
   return state;
 }
 
+const protocol::ViewLinkGrant kGrant{{protocol::GrantRef::Kind::kUser, "u00000000000000a1"},
+                                     {protocol::GrantRef::Kind::kUser, "u00000000000000a1"},
+                                     1764072000,
+                                     std::nullopt};
+
 // The state a view link reproduces: its parts over any defaults.
 protocol::ViewState Reproduce(const protocol::ViewLink& link, const protocol::ViewState& base) {
   protocol::ViewState state = base;
@@ -64,11 +69,11 @@ TEST_F(ViewStoreTest, SavedViewsReadBackExactlyAfterAReopen) {
   {
     auto store = ViewStore::Open(dir_);
     ASSERT_TRUE(store.ok()) << store.status().ToString();
-    auto saved = (*store)->Save("embryo-1", state);
+    auto saved = (*store)->Save("embryo-1", state, kGrant);
     ASSERT_TRUE(saved.ok()) << saved.status().ToString();
     id = *saved;
     EXPECT_TRUE(std::regex_match(id, std::regex("[A-Za-z0-9_-]{22}")));
-    EXPECT_TRUE((*store)->Exists(id));
+    EXPECT_TRUE((*store)->Find(id).has_value());
   }
   struct stat st {};
   ASSERT_EQ(::stat((dir_ / "views" / (id + ".json")).c_str(), &st), 0);
@@ -79,16 +84,24 @@ TEST_F(ViewStoreTest, SavedViewsReadBackExactlyAfterAReopen) {
 
   auto store = ViewStore::Open(dir_);
   ASSERT_TRUE(store.ok());
-  EXPECT_TRUE((*store)->Exists(id));
+  // The index holds the dataset and grant of every link, read back at Open.
+  const auto entry = (*store)->Find(id);
+  ASSERT_TRUE(entry.has_value());
+  EXPECT_EQ(entry->dataset, "embryo-1");
+  ASSERT_TRUE(entry->grant.has_value());
+  EXPECT_EQ(entry->grant->creator, kGrant.creator);
+  EXPECT_EQ(entry->grant->created_unix_s, kGrant.created_unix_s);
+  EXPECT_EQ((*store)->OwnedBy(kGrant.owner), 1u);
+  EXPECT_EQ((*store)->OwnedBy({protocol::GrantRef::Kind::kUser, "other"}), 0u);
   auto link = (*store)->Load(id);
   ASSERT_TRUE(link.ok()) << link.status().ToString();
   EXPECT_EQ(link->dataset, "embryo-1");
   auto text = (*store)->LoadText(id);
   ASSERT_TRUE(text.ok());
-  EXPECT_EQ(*text, protocol::ViewLinkJson("embryo-1", state));
+  EXPECT_EQ(*text, protocol::ViewLinkJson("embryo-1", state, kGrant));
   // The state a session opens from the link reads exactly as stored (the camera canonical).
   const protocol::ViewState reopened = Reproduce(*link, state);
-  EXPECT_EQ(protocol::ViewLinkJson("embryo-1", reopened), *text);
+  EXPECT_EQ(protocol::ViewLinkJson("embryo-1", reopened, kGrant), *text);
   EXPECT_NE(text->find(protocol::StateJson(reopened)), std::string::npos);
   // Everything but the camera's last digits is the saved state itself.
   protocol::ViewState expected = state;
@@ -102,11 +115,30 @@ TEST_F(ViewStoreTest, IdsAreRandomAndUnknownOnesAreNotFound) {
   auto store = ViewStore::Open(dir_);
   ASSERT_TRUE(store.ok());
   std::set<std::string> ids;
-  for (int i = 0; i < 50; ++i) ids.insert(*(*store)->Save("d", TestState()));
+  for (int i = 0; i < 50; ++i) ids.insert(*(*store)->Save("d", TestState(), kGrant));
   EXPECT_EQ(ids.size(), 50u);
+  EXPECT_EQ((*store)->List().size(), 50u);
+  EXPECT_EQ((*store)->OwnedBy(kGrant.owner), 50u);
   EXPECT_EQ((*store)->Load("AAAAAAAAAAAAAAAAAAAAAA").status().code(), StatusCode::kNotFound);
   EXPECT_EQ((*store)->Load("../../../etc/passwd").status().code(), StatusCode::kNotFound);
-  EXPECT_FALSE((*store)->Exists("../x"));
+  EXPECT_FALSE((*store)->Find("../x").has_value());
+}
+
+TEST_F(ViewStoreTest, DeletedViewsAreGoneFromDiskAndIndexAcrossAReopen) {
+  auto store = ViewStore::Open(dir_);
+  ASSERT_TRUE(store.ok());
+  const std::string keep = *(*store)->Save("d", TestState(), kGrant);
+  const std::string gone = *(*store)->Save("d", TestState(), kGrant);
+  ASSERT_TRUE((*store)->Delete(gone).ok());
+  EXPECT_FALSE((*store)->Find(gone).has_value());
+  EXPECT_EQ((*store)->Load(gone).status().code(), StatusCode::kNotFound);
+  EXPECT_FALSE(fs::exists(dir_ / "views" / (gone + ".json")));
+  EXPECT_EQ((*store)->Delete(gone).code(), StatusCode::kNotFound);
+  EXPECT_EQ((*store)->Delete("../../x").code(), StatusCode::kNotFound);
+  auto again = ViewStore::Open(dir_);
+  ASSERT_TRUE(again.ok());
+  EXPECT_TRUE((*again)->Find(keep).has_value());
+  EXPECT_FALSE((*again)->Find(gone).has_value());
 }
 
 TEST_F(ViewStoreTest, CorruptFilesAreClearErrors) {
@@ -117,13 +149,14 @@ TEST_F(ViewStoreTest, CorruptFilesAreClearErrors) {
   std::ofstream(dir_ / "views" / (partial + ".json"))
       << R"({"version":1,"dataset":"d","state":{"layout":{"maximized":null}}})";
   std::ofstream(dir_ / "views" / (huge + ".json")) << std::string(kMaxViewDocumentBytes + 1, ' ');
-  std::string next_version = protocol::ViewLinkJson("d", TestState());
-  next_version[11] = '2';  // {"version":2,...
+  std::string next_version = protocol::ViewLinkJson("d", TestState(), kGrant);
+  next_version[11] = '3';  // {"version":3,...
   std::ofstream(dir_ / "views" / (future + ".json")) << next_version;
   auto store = ViewStore::Open(dir_);
   ASSERT_TRUE(store.ok());
   for (const std::string& id : {truncated, partial, huge, future}) {
-    EXPECT_TRUE((*store)->Exists(id));
+    EXPECT_TRUE((*store)->Find(id).has_value());
+    EXPECT_FALSE((*store)->Find(id)->grant.has_value());
     auto link = (*store)->Load(id);
     ASSERT_FALSE(link.ok()) << id;
     EXPECT_EQ(link.status().code(), StatusCode::kCorrupt) << link.status().ToString();

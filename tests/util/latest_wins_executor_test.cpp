@@ -42,6 +42,24 @@ TEST(LatestWinsExecutorTest, APendingJobIsReplacedAndAKeyNeverRunsConcurrently) 
   EXPECT_EQ(ex.replaced(), 49u);
 }
 
+TEST(LatestWinsExecutorTest, PostedJobsAreNeverReplaced) {
+  LatestWinsExecutor ex(1);
+  std::atomic<bool> release{false};
+  std::atomic<int> ran{0};
+  ex.Post([&] {
+    while (!release) std::this_thread::yield();
+    ++ran;
+  });
+  for (int i = 0; i < 20; ++i) ex.Post([&] { ++ran; });
+  release = true;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (ran.load() < 21 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::yield();
+  }
+  EXPECT_EQ(ran.load(), 21);
+  EXPECT_EQ(ex.replaced(), 0u);
+}
+
 TEST(LatestWinsExecutorTest, KeysRunInParallelAndExceptionsAreContained) {
   LatestWinsExecutor ex(2);
   std::atomic<int> arrived{0};
