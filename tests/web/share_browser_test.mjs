@@ -410,6 +410,41 @@ test('the owner removes a participant; the owner\'s reconnect keeps its session 
   await shot('13-owner-reconnected', owner);
 });
 
+test('the address bar never shows the user token; the owner lists, expires and deletes view links', async () => {
+  const owner = pages.owner;
+  // The token left the address bar at once: copying the address hands nobody the token.
+  assert.equal(new URL(owner.url()).searchParams.get('token'), null, `address: ${owner.url()}`);
+  assert.equal(new URL(owner.url()).searchParams.get('dataset'), datasetId);
+  // A reload still works (this tab kept the token) and comes back to the same session.
+  const session = await oct(owner, () => window.octoscope.session);
+  await owner.reload();
+  await h.waitFor(async () => (await oct(owner, () => window.octoscope.session)) === session, 'the same session after a reload', 30000);
+  assert.equal(new URL(owner.url()).searchParams.get('token'), null);
+  await h.waitForFinal(owner, '3d', 0);
+  // The view link of the fork's test is listed; a new one expiring in a day joins it.
+  const first = await h.waitFor(async () => {
+    const list = await oct(owner, () => window.octoscope.viewLinks);
+    return list.length === 1 ? list[0] : null;
+  }, 'the earlier view link listed');
+  assert.equal(first.valid, true);
+  await owner.selectOption('#session-panel .view-ttl', '86400');
+  await owner.click('#session-panel .copy-view-link');
+  const link = await waitForLink(owner, 'view');
+  assert.ok(link.expires, 'the new view link expires');
+  await h.waitFor(async () => (await oct(owner, () => window.octoscope.viewLinks)).length === 2, 'two view links listed');
+  const fresh = owner.locator(`#session-panel .view-link[data-id="${link.id}"] .info`);
+  assert.match(await fresh.textContent(), /^embryo\.ome\.tif · made just now · expires in 24 h$/);
+  await owner.locator('#session-panel .view-links').scrollIntoViewIfNeeded();
+  await shot('14-view-links', owner);
+  // Deleting the earlier one ends the session opened through it (the fork), with a clear message.
+  const fork = pages.fork;
+  await owner.click(`#session-panel .view-link[data-id="${first.id}"] button.delete`);
+  await h.waitFor(async () => (await oct(owner, () => window.octoscope.viewLinks)).length === 1, 'the link gone from the list');
+  await h.waitFor(async () => (await oct(fork, () => window.octoscope.connection)) === 'ended', 'the fork ended', 20000);
+  assert.match(await fork.textContent('#connection-banner'), /access to this session ended/);
+  await shot('15-fork-ended', fork);
+});
+
 test('no console errors', () => {
   assert.deepEqual(consoleErrors, []);
 });

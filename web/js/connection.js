@@ -15,6 +15,7 @@ export const CLOSE_REVOKED = 4001;
 export const CLOSE_RESUMED_ELSEWHERE = 4002;
 export const CLOSE_KICKED = 4003;
 export const CLOSE_GONE = 4004;
+export const CLOSE_ACCESS_ENDED = 4005;
 
 // What a close means for the page: {retry: bool, message: text for the user}; `joined`: the
 // connection had been welcomed into a session. Pure.
@@ -22,8 +23,13 @@ export function closeOutcome(code, reason, joined = true) {
   const why = typeof reason === 'string' && reason ? reason : '';
   switch (code) {
     case CLOSE_REVOKED:
+      if (/expired/.test(why)) return {retry: false, message: 'This share link expired — you have left the session.'};
       return {retry: false, message: joined ? 'The owner revoked this share link — you have left the session.' :
         'This share link no longer works: the owner revoked it, or it expired.'};
+    case CLOSE_ACCESS_ENDED:
+      // The grant this connection rested on ended (a token expired, a user removed, a link
+      // deleted): reconnecting would be refused.
+      return {retry: false, message: `Your access to this session ended${why ? ` (${why.replace(/^access ended: /, '')})` : ''}.`};
     case CLOSE_KICKED:
       return {retry: false, message: 'The owner removed you from the session.'};
     case CLOSE_RESUMED_ELSEWHERE:

@@ -4,7 +4,7 @@
 // In a shared session it follows the state the others drive (`state` events update every panel)
 // and, as a viewer, keeps every driving control read-only.
 
-import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset} from './url_state.js';
+import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset, withoutToken} from './url_state.js';
 import {Connection} from './connection.js';
 import {cleanName, Participants} from './participants.js';
 import {SharePanel} from './share_panel.js';
@@ -26,12 +26,21 @@ const MODES = ['dvr', 'mip', 'minip'];
 const HISTOGRAM_REFRESH_MS = 2000;
 const VIEW_ONLY_HINT_MS = 4000;
 const RESUME_KEY = 'octoscope.resume';
+const TOKEN_KEY = 'octoscope.token';
 const NAME_KEY = 'octoscope.name';
 const LOSSLESS_KEY = 'octoscope.lossless';
 
 class App {
   constructor() {
     const url = readUrlState(location.href);
+    // The user token leaves the address bar at once (a copied address must never hand it on);
+    // this tab keeps it for reloads.
+    if (url.token) {
+      writeStorage(TOKEN_KEY, url.token, () => sessionStorage);
+      history.replaceState(history.state, '', withoutToken(location.href));
+    } else {
+      url.token = readStorage(TOKEN_KEY, () => sessionStorage);
+    }
     this.url = url;
     this.token = url.token;
     // A share link joins someone else's session: its dataset is theirs, not the address's.
@@ -115,11 +124,15 @@ class App {
     this.picker = new DatasetPicker(document.querySelector('#picker'), () => this.fetchJson('api/datasets'),
         (id) => this.openDataset(id));
     this.screenshots = new Screenshots((m) => this.connection.send(m));
+    // A signed-in user lists and deletes the view links they own (GET/DELETE api/views).
+    const user = url.mode === 'user' && this.token;
     this.sharePanel = new SharePanel(document.querySelector('#session-panel'), {
       send: (m) => this.connection.send(m),
       fallbackUrl: (kind, secret) => linkUrl(location.href, kind, secret),
       storedName: () => this.displayName(),
       onName: (name) => this.setDisplayName(name),
+      listViews: user ? () => this.fetchJson('api/views') : null,
+      deleteView: user ? async (id) => (await this.request(`api/views/${id}`, 'DELETE')).ok : null,
     });
     this.bindToolbar();
     this.applyRole();
@@ -157,9 +170,10 @@ class App {
 
   // A user's token goes in a header (kept out of server logs); a share or view link's credential
   // is the query parameter the server knows it by.
-  request(path) {
+  request(path, method = 'GET') {
     const user = this.url.mode === 'user';
     return fetch(apiUrl(location.href, path, user ? {} : credentialParams(this.url)), {
+      method,
       headers: user && this.token ? {Authorization: `Bearer ${this.token}`} : {},
       cache: 'no-store',
     });
@@ -291,7 +305,8 @@ class App {
         break;
       case 'view_saved':
         this.sharePanel.showLink('view', msg.url || linkUrl(location.href, 'view', msg.id));
-        window.octoscope.lastLink = {kind: 'view', url: msg.url, id: msg.id};
+        window.octoscope.lastLink = {kind: 'view', url: msg.url, id: msg.id, expires: msg.expires};
+        this.sharePanel.refreshViewLinks();
         break;
       case 'opened':
         this.opened(msg);
@@ -324,6 +339,8 @@ class App {
         }
         // A fatal error closes the connection: the banner says why (closeOutcome).
         if (msg.fatal === true) break;
+        // A link that could not be made says so where it was asked for.
+        if (msg.request === 'view_save' || msg.request === 'share_create') this.sharePanel.showNote(msg.message);
         this.status.error(`${msg.request ? msg.request + ': ' : ''}${msg.message}`);
         break;
       default:
@@ -838,6 +855,7 @@ window.octoscope = {
   get role() { return app.participants.role; },
   get participants() { return app.participants.list.map((p) => ({...p})); },
   get shares() { return app.sharePanel.shares.map((s) => ({...s})); },
+  get viewLinks() { return app.sharePanel.viewLinks.map((v) => ({...v})); },
   get serverErrors() { return app.serverErrors.slice(); },
   get session() { return app.session; },
   dropConnection() { app.connection.drop(); },

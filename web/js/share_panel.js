@@ -1,10 +1,11 @@
 // Share panel: the "Session" section of the side panel. Everyone sees the participants (role
 // badges, who is driving, which one is "you") and can copy a view link (a snapshot of the view
-// that opens as an independent session). The owner also creates live share links (viewer or
-// controller, optionally expiring), sees the active links and revokes them, and promotes, demotes
-// or removes participants. Every action is a message through send(msg) (docs/protocol.md); the
-// panel only renders what the server reports (`participants`, `shares`, `share_created`,
-// `view_saved`).
+// that opens as an independent session, optionally expiring). The owner also creates live share
+// links (viewer or controller, optionally expiring), sees the active links and revokes them, and
+// promotes, demotes or removes participants. A signed-in user also sees the view links they own
+// (GET /api/views: which dataset, when made, expiry, whether it still opens) and deletes them.
+// Session actions are messages through send(msg) (docs/protocol.md); the panel only renders what
+// the server reports (`participants`, `shares`, `share_created`, `view_saved`, the API's list).
 
 import {roleLabel} from './participants.js';
 
@@ -31,6 +32,38 @@ export function describeExpiry(expires, nowMs = Date.now()) {
   const hours = Math.round(s / 3600);
   if (hours < 48) return `expires in ${hours} h`;
   return `expires in ${Math.round(s / 86400)} d`;
+}
+
+// One entry of GET /api/views, checked; null when unusable.
+export function normalizeViewLink(v) {
+  if (!v || typeof v !== 'object' || typeof v.id !== 'string' || !v.id) return null;
+  const text = (x) => (typeof x === 'string' ? x : '');
+  return {
+    id: v.id, url: text(v.url), dataset: text(v.dataset), datasetName: text(v.dataset_name),
+    madeThrough: text(v.made_through), owner: text(v.owner), created: text(v.created),
+    expires: typeof v.expires === 'string' && v.expires ? v.expires : null,
+    valid: v.valid === true, reason: text(v.reason),
+  };
+}
+
+// How a view link is described in the list: "embryo.ome.tif · made 3 h ago · expires in 2 d",
+// or why it no longer opens.
+export function describeViewLink(v, nowMs = Date.now()) {
+  const parts = [v.datasetName || v.dataset || 'unknown dataset'];
+  const made = Date.parse(v.created);
+  if (Number.isFinite(made)) parts.push(`made ${describeAge((nowMs - made) / 1000)}`);
+  if (v.madeThrough === 'share') parts.push('by a guest');
+  parts.push(v.valid ? describeExpiry(v.expires, nowMs) : `does not open: ${v.reason || 'no longer valid'}`);
+  return parts.join(' · ');
+}
+
+function describeAge(seconds) {
+  if (!(seconds >= 60)) return 'just now';
+  const minutes = Math.round(seconds / 60);
+  if (minutes < 60) return `${minutes} min ago`;
+  const hours = Math.round(seconds / 3600);
+  if (hours < 48) return `${hours} h ago`;
+  return `${Math.round(seconds / 86400)} d ago`;
 }
 
 // A token shown in lists: its first characters only (the whole one is in the link).
@@ -73,16 +106,26 @@ export class SharePanel {
     this.h = handlers;
     this.model = null;
     this.shares = [];
+    this.viewLinks = [];
     const q = (s) => root.querySelector(s);
     this.el = {
       role: q('.my-role'), list: q('.participants'),
       owner: q('.share-owner'), links: q('.share-links'), result: q('.share-result'),
       resultTitle: q('.share-result .link-title'), url: q('.share-result input'),
-      note: q('.share-result .note'), ttl: q('.share-ttl'),
+      note: q('.share-result .note'), ttl: q('.share-ttl'), viewTtl: q('.view-ttl'),
+      views: q('.view-links'), viewList: q('.view-link-list'),
     };
     q('.share-viewer').addEventListener('click', () => this.create('viewer'));
     q('.share-controller').addEventListener('click', () => this.create('controller'));
-    q('.copy-view-link').addEventListener('click', () => this.request({type: 'view_save'}, 'view'));
+    q('.copy-view-link').addEventListener('click', () => {
+      const msg = {type: 'view_save'};
+      const ttl = Number(this.el.viewTtl?.value);
+      if (Number.isFinite(ttl) && ttl > 0) msg.ttl_s = ttl;
+      this.request(msg, 'view');
+    });
+    q('.refresh-view-links')?.addEventListener('click', () => this.refreshViewLinks());
+    if (this.el.views) this.el.views.hidden = !handlers.listViews;
+    this.refreshViewLinks();
     q('.share-result .copy').addEventListener('click', () => this.copy(this.el.url.value));
     this.el.url.addEventListener('focus', () => this.el.url.select());
     this.el.name = q('.name-input');
@@ -188,6 +231,53 @@ export class SharePanel {
     }
     if (actions.childElementCount) li.appendChild(actions);
     return li;
+  }
+
+  // The view links this user owns, from the server (GET api/views).
+  async refreshViewLinks() {
+    if (!this.h.listViews) return;
+    try {
+      const list = await this.h.listViews();
+      this.viewLinks = (Array.isArray(list) ? list : []).map(normalizeViewLink).filter(Boolean);
+    } catch {
+      return;  // Not reachable now: the list stays as it was.
+    }
+    this.renderViewLinks();
+  }
+
+  renderViewLinks() {
+    if (!this.el.viewList) return;
+    const items = this.viewLinks.map((v) => {
+      const li = document.createElement('li');
+      li.className = 'view-link';
+      li.dataset.id = v.id;
+      li.dataset.valid = v.valid ? 'yes' : 'no';
+      const info = document.createElement('span');
+      info.className = 'info';
+      info.textContent = describeViewLink(v);
+      info.title = info.textContent;
+      const copy = document.createElement('button');
+      copy.className = 'copy';
+      copy.textContent = 'Copy';
+      copy.disabled = !v.valid || !v.url;
+      copy.setAttribute('aria-label', `Copy the view link of ${v.datasetName || v.dataset}`);
+      copy.addEventListener('click', () => this.showLink('view', v.url));
+      const del = document.createElement('button');
+      del.className = 'delete';
+      del.textContent = 'Delete';
+      del.title = 'The link stops working for everyone who has it';
+      del.setAttribute('aria-label', `Delete the view link of ${v.datasetName || v.dataset}`);
+      del.addEventListener('click', async () => {
+        del.disabled = true;
+        const ok = await this.h.deleteView?.(v.id).catch(() => false);
+        if (!ok) this.showNote('The view link could not be deleted; try again.');
+        await this.refreshViewLinks();
+      });
+      li.append(info, copy, del);
+      return li;
+    });
+    this.el.viewList.replaceChildren(...items);
+    this.el.viewList.dataset.count = String(items.length);
   }
 
   // The active share links (`shares`, owner only).

@@ -44,6 +44,14 @@ export function withDataset(href, dataset) {
   return url.toString();
 }
 
+// The same URL without the user token: what the address bar shows once the page has read it, so
+// that a copied address never hands a colleague the token.
+export function withoutToken(href) {
+  const url = new URL(href);
+  url.searchParams.delete('token');
+  return url.toString();
+}
+
 // The folder of the page: every server URL is relative to it (path prefix behind a proxy).
 function relativeToPage(href, path) {
   const url = new URL(href);

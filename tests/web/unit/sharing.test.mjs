@@ -3,8 +3,8 @@
 import {test} from 'node:test';
 import assert from 'node:assert/strict';
 import {canDrive, cleanName, MAX_NAME_BYTES, normalizeParticipant, Participants, sortParticipants} from '../../../web/js/participants.js';
-import {abbreviateToken, describeExpiry, normalizeShare} from '../../../web/js/share_panel.js';
-import {closeOutcome, CLOSE_GONE, CLOSE_KICKED, CLOSE_RESUMED_ELSEWHERE, CLOSE_REVOKED} from '../../../web/js/connection.js';
+import {abbreviateToken, describeExpiry, describeViewLink, normalizeShare, normalizeViewLink} from '../../../web/js/share_panel.js';
+import {closeOutcome, CLOSE_ACCESS_ENDED, CLOSE_GONE, CLOSE_KICKED, CLOSE_RESUMED_ELSEWHERE, CLOSE_REVOKED} from '../../../web/js/connection.js';
 
 const event = [
   {id: 3, name: 'carol', role: 'viewer', driving: false, you: true},
@@ -121,4 +121,36 @@ test('the name sent in hello: clean, at most 64 bytes of UTF-8, never half a cha
   const emoji = cleanName('x' + '🔬'.repeat(20));  // 4 bytes each: 15 fit after the x
   assert.equal(new TextEncoder().encode(emoji).length, 61);
   assert.ok(new TextEncoder().encode(cleanName('日本語'.repeat(30))).length <= MAX_NAME_BYTES);
+});
+
+test('view links: entries of GET api/views checked; described by dataset, age, expiry or why not', () => {
+  assert.equal(normalizeViewLink(null), null);
+  assert.equal(normalizeViewLink({id: ''}), null);
+  assert.equal(normalizeViewLink({id: 7}), null);
+  const now = Date.parse('2026-11-28T12:00:00Z');
+  const v = normalizeViewLink({id: 'AAAAAAAAAAAAAAAAAAAAAA', url: 'https://h/?view=A', dataset: 'a1',
+    dataset_name: 'embryo.ome.tif', made_through: 'user', owner: 'alice',
+    created: '2026-11-28T09:00:00Z', expires: '2026-11-30T12:00:00Z', valid: true, reason: null});
+  assert.equal(v.datasetName, 'embryo.ome.tif');
+  assert.equal(v.reason, '');
+  assert.equal(describeViewLink(v, now), 'embryo.ome.tif · made 3 h ago · expires in 2 d');
+  const guest = normalizeViewLink({id: 'B', dataset: 'a1', made_through: 'share', created: '2026-11-28T11:59:30Z',
+    expires: null, valid: false, reason: 'the share link was revoked or expired'});
+  assert.equal(describeViewLink(guest, now),
+      'a1 · made just now · by a guest · does not open: the share link was revoked or expired');
+  // Hostile fields become harmless text.
+  const odd = normalizeViewLink({id: 'C', url: {x: 1}, dataset_name: 5, valid: 'yes', created: 'soon'});
+  assert.equal(odd.url, '');
+  assert.equal(odd.valid, false);
+  assert.equal(describeViewLink(odd, now), 'unknown dataset · does not open: no longer valid');
+});
+
+test('an ended grant (4005) and an expired link (4001) say so and do not retry', () => {
+  const ended = closeOutcome(CLOSE_ACCESS_ENDED, 'access ended: token expired');
+  assert.equal(ended.retry, false);
+  assert.equal(ended.message, 'Your access to this session ended (token expired).');
+  assert.equal(closeOutcome(CLOSE_ACCESS_ENDED, '').message, 'Your access to this session ended.');
+  const expired = closeOutcome(CLOSE_REVOKED, 'share link expired');
+  assert.equal(expired.retry, false);
+  assert.match(expired.message, /expired/);
 });

@@ -1,6 +1,6 @@
 import {test} from 'node:test';
 import assert from 'node:assert/strict';
-import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset} from '../../../web/js/url_state.js';
+import {apiUrl, credentialParams, linkUrl, readUrlState, webSocketUrl, withDataset, withoutToken} from '../../../web/js/url_state.js';
 
 const SHARE = 'q7Vt3kYxW0b9-Lm_2NcPzA';  // 22 base64url characters: 128 bits.
 const VIEW = 'AAAAAAAAAAAAAAAAAAAAAA';
@@ -62,4 +62,11 @@ test('a link made by the page holds only the link secret, under the page\'s pref
   assert.equal(linkUrl('https://lab.example/octo/index.html?token=secret&dataset=a#x', 'share', SHARE),
       `https://lab.example/octo/?share=${SHARE}`);
   assert.equal(linkUrl('http://h:1/?token=t', 'view', VIEW), `http://h:1/?view=${VIEW}`);
+});
+
+test('the address bar loses the token, keeping everything else', () => {
+  assert.equal(withoutToken('http://h:1/octo/?token=t&dataset=a1'), 'http://h:1/octo/?dataset=a1');
+  assert.equal(withoutToken('http://h/?token=t'), 'http://h/');
+  assert.equal(withoutToken(`http://h/?view=${VIEW}&token=t#x`), `http://h/?view=${VIEW}#x`);
+  assert.equal(withoutToken('http://h/?dataset=a1'), 'http://h/?dataset=a1');
 });
