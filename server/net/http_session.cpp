@@ -54,6 +54,18 @@ asio::ip::address PeerAddress(const tcp::socket& socket) {
   return ec ? asio::ip::address() : e.address();
 }
 
+// `path` with the segment after any of `prefixes` replaced by "<redacted>" (view-link ids are
+// credentials: whoever has one opens the view).
+std::string RedactPath(std::string_view path, const std::vector<std::string>& prefixes) {
+  for (const std::string& prefix : prefixes) {
+    if (prefix.empty() || !path.starts_with(prefix) || path.size() == prefix.size()) continue;
+    const size_t end = path.find('/', prefix.size());
+    return prefix + "<redacted>" +
+           std::string(end == std::string_view::npos ? std::string_view() : path.substr(end));
+  }
+  return std::string(path);
+}
+
 // A header value may not contain line breaks (they would forge headers).
 bool SafeHeaderValue(std::string_view value) {
   return value.find_first_of("\r\n") == std::string_view::npos;
@@ -424,7 +436,7 @@ void HttpSession::CallHandler() {
   }
   if (threw) {
     core_->Log(LogLevel::kError,
-               "ApiHandler::Handle threw on " + method_ + " " + path_ + ": " + what);
+               "ApiHandler::Handle threw on " + method_ + " " + LoggedPath() + ": " + what);
     responder.Respond(HttpResponse::Error(500, "internal error: " + what));
   }
 }
@@ -500,8 +512,8 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
       FailPiece(ResourceExhaustedError(message));
       SendError(413, message);
     } else if (ec == beast::error::timeout) {
-      core_->Log(LogLevel::kWarning,
-                 "HTTP " + remote_ + " " + method_ + " " + path_ + ": upload stalled, closing");
+      core_->Log(LogLevel::kWarning, "HTTP " + remote_ + " " + method_ + " " + LoggedPath() +
+                                         ": upload stalled, closing");
       FailPiece(UnavailableError("the upload stalled"));
       CloseNow();
     } else if (IsHttpParseError(ec) && ec != http::error::partial_message &&
@@ -510,7 +522,7 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
       FailPiece(InvalidArgumentError(message));
       SendError(400, message);
     } else {
-      core_->Log(LogLevel::kInfo, "HTTP " + remote_ + " " + method_ + " " + path_ +
+      core_->Log(LogLevel::kInfo, "HTTP " + remote_ + " " + method_ + " " + LoggedPath() +
                                       ": client went away during the upload");
       FailPiece(UnavailableError("the client went away during the upload: " + ec.message()));
       CloseNow();
@@ -579,6 +591,11 @@ void HttpSession::UpgradeToWebSocket() {
   session->Start(std::move(request));
 }
 
+std::string HttpSession::LoggedPath() const {
+  if (path_.empty()) return "-";
+  return Printable(RedactPath(path_, core_->options.secret_path_prefixes), 200);
+}
+
 bool HttpSession::MustClose() const {
   return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ || core_->shutting_down;
 }
@@ -600,7 +617,7 @@ void HttpSession::SendError(int status, std::string_view message, std::vector<Ht
 
 void HttpSession::SendResponse(HttpResponse r) {
   if (r.status < 100 || r.status > 599) {
-    core_->Log(LogLevel::kError, "handler answered " + method_ + " " + path_ +
+    core_->Log(LogLevel::kError, "handler answered " + method_ + " " + LoggedPath() +
                                      " with invalid status " + std::to_string(r.status));
     r = HttpResponse::Error(500, "internal error: invalid response status");
   }
@@ -649,11 +666,12 @@ void HttpSession::OnWrite(bool close, int status, uint64_t body_bytes, beast::er
           .count();
   char timing[32];
   std::snprintf(timing, sizeof timing, "%.1f ms", ms);
-  // The path is logged decoded and without the query: the token never reaches the log.
+  // The path is logged decoded, without the query and with secret segments redacted: tokens and
+  // view-link ids never reach the log.
   core_->Log(status >= 500 ? LogLevel::kWarning : LogLevel::kInfo,
              "HTTP " + remote_ + " " + (method_.empty() ? "-" : Printable(method_, 16)) + " " +
-                 (path_.empty() ? "-" : Printable(path_, 200)) + " " + std::to_string(status) +
-                 " " + std::to_string(body_bytes) + " B " + timing + (ec ? " (write failed)" : ""));
+                 LoggedPath() + " " + std::to_string(status) + " " + std::to_string(body_bytes) +
+                 " B " + timing + (ec ? " (write failed)" : ""));
   if (state_ == State::kClosed) return;
   if (ec) {
     CloseNow();

@@ -80,6 +80,8 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   void CloseGracefully();
   void OnLinger(boost::beast::error_code ec, size_t bytes);
   void CloseNow();
+  // The request's path for log lines: printable, secret segments redacted, "-" when unknown.
+  std::string LoggedPath() const;
   // Whether the response to the current request must close the connection.
   bool MustClose() const;
   void ApplyCommonHeaders(boost::beast::http::fields& fields) const;

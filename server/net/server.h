@@ -49,6 +49,9 @@ struct ServerOptions {
   std::vector<std::string> trusted_proxies;
   // The web client's files; empty serves none (every static path is 404).
   std::filesystem::path web_root;
+  // Paths whose segment after one of these prefixes is a credential (the view-link ids of
+  // /api/views/ID): log lines show "PREFIX<redacted>" instead, whatever the method.
+  std::vector<std::string> secret_path_prefixes = {"/api/views/"};
 
   size_t max_header_bytes = 8 << 10;
   size_t max_json_body_bytes = 64 << 10;

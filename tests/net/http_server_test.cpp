@@ -414,6 +414,30 @@ TEST_F(HttpServerTest, ForwardedHeadersAreBelievedOnlyFromTrustedProxies) {
             StatusCode::kInvalidArgument);
 }
 
+TEST_F(HttpServerTest, ViewLinkIdsInPathsAreRedactedInTheLog) {
+  Start();
+  const std::string id = "Vw0123456789abcdefghij";
+  for (const http::verb method : {http::verb::get, http::verb::delete_, http::verb::put}) {
+    EXPECT_EQ(Fetch(port_, method, "/api/views/" + id + Token()).status, 404);
+  }
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/views/" + id + "/part" + Token()).status, 404);
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/views/" + id).status, 401);
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/echo/" + id + Token()).status, 404);
+  ASSERT_TRUE(WaitFor([&] { return logger_.Contains("GET /api/echo/" + id + " 404"); }));
+  EXPECT_TRUE(WaitFor([&] {
+    return logger_.Contains("GET /api/views/<redacted> 404") &&
+           logger_.Contains("DELETE /api/views/<redacted> 404") &&
+           logger_.Contains("PUT /api/views/<redacted> 404") &&
+           logger_.Contains("GET /api/views/<redacted>/part 404") &&
+           logger_.Contains("GET /api/views/<redacted> 401");
+  }));
+  for (const std::string& line : logger_.lines()) {
+    if (line.find("/api/echo/") == std::string::npos) {
+      EXPECT_EQ(line.find(id), std::string::npos) << line;
+    }
+  }
+}
+
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {
   Start();
   // Just under the limit is fine.
