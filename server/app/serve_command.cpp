@@ -223,6 +223,7 @@ int RunServe(std::span<const std::string> args) {
   routes_options.access = access.get();
   routes_options.creators = access.get();
   routes_options.views = views->get();
+  routes_options.max_upload_bytes = server_options.max_upload_bytes;
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
                                             routes_options);
   auto server = net::Server::Start(

@@ -2,9 +2,11 @@
 // Wrong credentials learn nothing; malformed, oversized and binary messages close only their
 // own connection (close codes of docs/protocol.md) while a well-behaved client keeps getting
 // frames; malformed uploads (wrong sizes, lying Content-Length, chunked bodies over the limit,
-// garbage TIFF) and uploads abandoned halfway are refused without touching the planes already
-// stored — read back through a lossless frame of the real renderer; concurrent uploads to one
-// dataset all land. (Load over time: soak_test.cpp.)
+// garbage TIFF, TIFFs decoding to more than the upload limit) and uploads abandoned halfway are
+// refused without touching the planes already stored — read back through a lossless frame of the
+// real renderer; concurrent uploads to one dataset all land; 64 concurrent maximum-size uploads
+// stay within the documented RAM bound (the others get 429 with Retry-After before their bodies
+// are read). (Load over time: soak_test.cpp.)
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -12,6 +14,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <latch>
 #include <optional>
 #include <string>
 #include <thread>
@@ -69,6 +72,12 @@ class HostileTest : public testing::ServeFixture {
 
   int tiff_files_ = 0;
 };
+
+// The value of a response header, "" when absent.
+std::string HeaderOf(const net::testing::HttpResult& r, std::string_view name) {
+  const auto it = r.headers.find(boost::beast::string_view(name.data(), name.size()));
+  return it == r.headers.end() ? "" : std::string(it->value());
+}
 
 // Every dataset-scoped route, with the method it takes and a body.
 struct Route {
@@ -524,6 +533,138 @@ TEST_F(HostileTest, ConcurrentUploadsToOneDatasetAllLand) {
   ASSERT_EQ(finished.status, 200) << finished.body;
   EXPECT_EQ(json::parse(finished.body)["state"], "ready");
   EXPECT_LE(StoredMipError(id, v), 1);
+}
+
+TEST_F(HostileTest, ATiffSlabMayNotDecodeToMoreThanTheUploadLimit) {
+  // Planes of 2 MiB: one is over --max-upload-mb (1), as a raw body (413 from the HTTP layer) and
+  // as a small deflated TIFF alike.
+  auto created = Fetch(
+      server_.port(), http::verb::post, Auth("/api/datasets"), {},
+      json{
+          {"name", "large planes"}, {"size", {1024, 1024, 4}}, {"channels", 1}, {"dtype", "uint16"}}
+          .dump());
+  ASSERT_EQ(created.status, 201) << created.body;
+  const std::string id = json::parse(created.body)["id"];
+  testing::TiffFixtureSpec spec;
+  spec.width = 1024;
+  spec.height = 1024;
+  spec.compression = 8;  // Deflate: a constant plane is a few KiB.
+  spec.rows_per_strip = 64;
+  ASSERT_TRUE(testing::WriteTiffFixture(dir_ / "large.tif", spec,
+                                        [](uint32_t, uint32_t, int, int) { return 500.0; }));
+  const auto bytes = testing::ReadAll(dir_ / "large.tif");
+  ASSERT_LT(bytes.size(), size_t{1} << 20);
+  auto r = Fetch(server_.port(), http::verb::put, SlabTarget(id, 0, 0, 1),
+                 {{"Content-Type", "image/tiff"}}, std::string(bytes.begin(), bytes.end()));
+  EXPECT_EQ(r.status, 413) << r.body;
+  EXPECT_EQ(Fetch(server_.port(), http::verb::put, SlabTarget(id, 0, 0, 1),
+                  {{"Content-Type", "application/octet-stream"}}, std::string(2 << 20, '\0'))
+                .status,
+            413);
+  EXPECT_EQ(DatasetJson(id)["planes_received"], 0);
+}
+
+// docs/api.md: uploads hold at most 8 x --max-upload-mb of slab bodies in RAM.
+class UploadMemoryTest : public testing::ServeFixture {
+ protected:
+  static constexpr int kUploadMb = 32;
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--max-upload-mb", std::to_string(kUploadMb), "--ram-mb", "64"};
+  }
+};
+
+TEST_F(UploadMemoryTest, SixtyFourConcurrentMaximumSizeUploadsStayWithinTheDocumentedBound) {
+  // 512 x 512 uint16 planes: 64 of them are one maximum-size slab (32 MiB). Every slab is
+  // constant, so inserting it is cheap: what the server holds is the bodies.
+  constexpr int64_t kX = 512, kY = 512, kDepth = 64;
+  constexpr int kUploads = 64;
+  const uint64_t slab_bytes = uint64_t{kUploadMb} << 20;
+  ASSERT_EQ(static_cast<uint64_t>(kX * kY * kDepth * 2), slab_bytes);
+  auto created = Fetch(server_.port(), http::verb::post, Auth("/api/datasets"), {},
+                       json{{"name", "upload memory"},
+                            {"size", {kX, kY, kDepth * (kUploads + 1)}},
+                            {"channels", 1},
+                            {"dtype", "uint16"}}
+                           .dump());
+  ASSERT_EQ(created.status, 201) << created.body;
+  const std::string id = json::parse(created.body)["id"];
+  std::string body(slab_bytes, '\0');
+  for (size_t i = 0; i < body.size(); i += 2) {  // 1000, little-endian.
+    body[i] = static_cast<char>(0xe8);
+    body[i + 1] = 3;
+  }
+  // One slab alone first (the ingest's and the octree's buffers); the peak is measured from here.
+  PutSlab(id, 0, kDepth * kUploads, kDepth, body, 200);
+  ASSERT_TRUE(server_.ResetPeakRss());
+  const uint64_t baseline_kib = server_.RssKiB();
+
+  struct Outcome {
+    int status = 0;
+    std::string retry_after;
+    std::string error;
+  };
+  std::vector<Outcome> outcomes(kUploads);
+  std::latch start(kUploads);
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kUploads; ++i) {
+    threads.emplace_back([&, i] {
+      net::testing::HttpClient client(server_.port());
+      // Half ask for "100 Continue" (curl does for large bodies); the others send at once.
+      const bool expect = i % 2 == 1;
+      const std::string target =
+          Auth("/api/datasets/" + id + "/slabs?z=" + std::to_string(kDepth * i) +
+               "&depth=" + std::to_string(kDepth) + "&channel=0");
+      const std::string head = "PUT " + target +
+                               " HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                               "Content-Type: application/octet-stream\r\nContent-Length: " +
+                               std::to_string(body.size()) + "\r\n" +
+                               (expect ? "Expect: 100-continue\r\n" : "") + "\r\n";
+      start.arrive_and_wait();
+      net::testing::HttpResult r;
+      if (client.WriteRaw(head)) {
+        r.error = "head not written";
+      } else if (expect) {
+        r = client.ReadResponse();
+        if (r.status == 100) {
+          client.WriteRaw(body);
+          r = client.ReadResponse();
+        }
+      } else {
+        client.WriteRaw(body);  // Fails when the server answered early and closed.
+        r = client.ReadResponse();
+      }
+      outcomes[i] = {r.status, HeaderOf(r, "Retry-After"), r.error};
+    });
+  }
+  for (auto& t : threads) t.join();
+  const uint64_t peak_kib = server_.PeakRssKiB();
+
+  int landed = 0, refused = 0;
+  for (int i = 0; i < kUploads; ++i) {
+    const Outcome& o = outcomes[i];
+    if (o.status == 200) {
+      ++landed;
+    } else {
+      EXPECT_EQ(o.status, 429) << "upload " << i << ": " << o.error;
+      EXPECT_FALSE(o.retry_after.empty()) << "upload " << i;
+      ++refused;
+    }
+  }
+  const uint64_t grown_mib = (peak_kib - std::min(peak_kib, baseline_kib)) >> 10;
+  std::printf(
+      "64 concurrent %d MiB uploads: %d landed, %d got 429; RSS %llu MiB before, peak "
+      "%llu MiB (+%llu MiB; bound 8 x %d MiB of bodies)\n",
+      kUploadMb, landed, refused, static_cast<unsigned long long>(baseline_kib >> 10),
+      static_cast<unsigned long long>(peak_kib >> 10), static_cast<unsigned long long>(grown_mib),
+      kUploadMb);
+  EXPECT_GE(landed, 1);
+  EXPECT_GE(refused, 1);
+  // The bodies (8 x 32 MiB) plus room for the I/O buffers and the inserts' own work.
+  EXPECT_LE(grown_mib, 8u * kUploadMb + 64u);
+  // Every admitted slab landed, and nothing else.
+  const json dataset = DatasetJson(id);
+  EXPECT_EQ(dataset["planes_received"], (landed + 1) * kDepth);
+  EXPECT_EQ(dataset["planes_inserted"], (landed + 1) * kDepth);
 }
 
 }  // namespace
