@@ -26,6 +26,7 @@
 #include "dataset/folder_watcher.h"
 #include "encode/jpeg_encoder.h"
 #include "net/auth.h"
+#include "net/origin_policy.h"
 #include "net/server.h"
 #include "render/device.h"
 #include "render/render_service.h"
@@ -218,6 +219,15 @@ int RunServe(std::span<const std::string> args) {
   server_options.trusted_proxies = settings->trusted_proxies;
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
+  server_options.max_connections = settings->max_connections;
+  server_options.max_connections_per_address = settings->max_connections_per_address;
+  // Pages of the public URL may open WebSockets (the listening address always may; with --port 0
+  // and no --public-url the public URL is that address).
+  server_options.allowed_origins = settings->allowed_origins;
+  if (const std::string base = PublicBaseUrl(*settings, settings->port);
+      (!settings->public_url.empty() || settings->port != 0) && net::ParseWebOrigin(base).ok()) {
+    server_options.allowed_origins.push_back(base);
+  }
   ApiRoutesOptions routes_options;
   routes_options.version = kVersion;
   routes_options.access = access.get();

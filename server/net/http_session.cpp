@@ -37,6 +37,14 @@ constexpr std::string_view kContinue = "HTTP/1.1 100 Continue\r\n\r\n";
 std::string_view Std(beast::string_view s) { return {s.data(), s.size()}; }
 beast::string_view Beast(std::string_view s) { return {s.data(), s.size()}; }
 
+// The last item of a comma-separated header value (the proxy nearest to us appends last).
+std::string_view LastListItem(std::string_view value) {
+  if (const size_t comma = value.rfind(','); comma != std::string_view::npos) {
+    value = value.substr(comma + 1);
+  }
+  return TrimWhitespace(value);
+}
+
 bool IsHttpParseError(const beast::error_code& ec) {
   return ec.category() == http::make_error_code(http::error::bad_method).category();
 }
@@ -100,11 +108,22 @@ class UploadReader : public BodyReader {
 
 }  // namespace
 
-HttpSession::HttpSession(tcp::socket socket, std::shared_ptr<ServerCore> core)
+void ApplyCommonHeaders(http::fields& fields) {
+  fields.set(http::field::server, "octoscope");
+  fields.set("X-Content-Type-Options", "nosniff");
+  // Pages are opened with ?token=...: never leak it to another site through Referer.
+  fields.set("Referrer-Policy", "no-referrer");
+}
+
+HttpSession::HttpSession(tcp::socket socket, std::shared_ptr<ServerCore> core,
+                         ConnectionLimits::Slot total, ConnectionLimits::Slot client)
     : core_(std::move(core)),
       stream_(std::move(socket)),
       buffer_(core_->options.max_header_bytes + (size_t{64} << 10)),
       peer_(PeerAddress(stream_.socket())),
+      via_proxy_(core_->proxies.Contains(peer_)),
+      total_slot_(std::move(total)),
+      client_slot_(std::move(client)),
       peer_remote_(Endpoint(stream_.socket())),
       remote_(peer_remote_) {}
 
@@ -152,6 +171,7 @@ void HttpSession::DoReadHeader() {
   deferred_response_.reset();
   piece_.clear();
   piece_.shrink_to_fit();
+  if (via_proxy_) client_slot_.reset();  // Idle, the connection speaks for nobody.
   header_parser_.emplace();
   header_parser_->header_limit(static_cast<uint32_t>(core_->options.max_header_bytes));
   // Body limits depend on the route; they are set once the header has been looked at. (Not
@@ -211,16 +231,48 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
 void HttpSession::IdentifyClient() {
   remote_ = peer_remote_;
   scheme_ = "http";
-  if (core_->proxies.empty() || !core_->proxies.Contains(peer_)) return;
+  forwarded_client_.clear();
+  if (!via_proxy_) return;
   const auto& request = header_parser_->get();
-  const std::string client = core_->proxies.ClientAddress(peer_, Std(request["X-Forwarded-For"]));
-  if (!client.empty()) remote_ = client;
-  // The proxy nearest to us appends last.
-  std::string_view proto = Std(request["X-Forwarded-Proto"]);
-  if (const size_t comma = proto.rfind(','); comma != std::string_view::npos) {
-    proto = proto.substr(comma + 1);
+  forwarded_client_ = core_->proxies.ClientAddress(peer_, Std(request["X-Forwarded-For"]));
+  if (!forwarded_client_.empty()) remote_ = forwarded_client_;
+  if (EqualsIgnoreCase(LastListItem(Std(request["X-Forwarded-Proto"])), "https")) scheme_ = "https";
+}
+
+bool HttpSession::AdmitForwardedClient() {
+  // Direct peers took their place at accept; the proxy's own requests count in all only.
+  if (!via_proxy_ || forwarded_client_.empty()) return true;
+  std::optional<ConnectionLimits::Slot> slot = core_->limits.AcquireAddress(forwarded_client_);
+  if (!slot) {
+    SendError(503,
+              "too many connections from " + forwarded_client_ + " (max-connections-per-address " +
+                  std::to_string(core_->limits.max_per_address()) + "); retry later",
+              {{"Retry-After", kRetryAfterSeconds}});
+    return false;
   }
-  if (EqualsIgnoreCase(TrimWhitespace(proto), "https")) scheme_ = "https";
+  client_slot_ = std::move(*slot);
+  return true;
+}
+
+bool HttpSession::OriginAllowed() {
+  const auto& request = header_parser_->get();
+  const auto origin = request.find(http::field::origin);
+  if (origin == request.end()) return true;  // Not a browser.
+  std::optional<WebOrigin> forwarded;
+  if (via_proxy_) {
+    // The origin the proxy serves: the scheme it says, the host the browser asked it for.
+    std::string_view host = LastListItem(Std(request["X-Forwarded-Host"]));
+    if (host.empty()) host = TrimWhitespace(Std(request[http::field::host]));
+    if (Result<WebOrigin> served = ParseAuthority(scheme_, host); served.ok()) {
+      forwarded = std::move(*served);
+    }
+  }
+  const std::string_view value = Std(origin->value());
+  if (core_->origins.Allows(value, forwarded)) return true;
+  core_->Log(LogLevel::kWarning, "WS " + remote_ + " refused: a page of Origin \"" +
+                                     Printable(value, 100) +
+                                     "\" may not open WebSockets here (allowed-origins)");
+  return false;
 }
 
 bool HttpSession::Authenticate() {
@@ -249,10 +301,13 @@ void HttpSession::Route() {
     SendError(503, "the server is shutting down");
     return;
   }
+  if (!AdmitForwardedClient()) return;
   const auto& request = header_parser_->get();
   if (websocket::is_upgrade(request)) {
     if (path_ != "/ws") {
       SendError(404, "no WebSocket endpoint at this path");
+    } else if (!OriginAllowed()) {
+      SendError(403, "this page's origin may not open WebSockets here");
     } else if (Authenticate()) {
       UpgradeToWebSocket();
     }
@@ -586,7 +641,8 @@ void HttpSession::UpgradeToWebSocket() {
   info.query = StripCredentials(query_);
   info.principal = std::move(principal_);
   auto session =
-      std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info));
+      std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info),
+                                         std::move(total_slot_), std::move(client_slot_));
   state_ = State::kClosed;  // This object ends here; the socket lives on in the WebSocket.
   session->Start(std::move(request));
 }
@@ -598,13 +654,6 @@ std::string HttpSession::LoggedPath() const {
 
 bool HttpSession::MustClose() const {
   return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ || core_->shutting_down;
-}
-
-void HttpSession::ApplyCommonHeaders(http::fields& fields) const {
-  fields.set(http::field::server, "octoscope");
-  fields.set("X-Content-Type-Options", "nosniff");
-  // Pages are opened with ?token=...: never leak it to another site through Referer.
-  fields.set("Referrer-Policy", "no-referrer");
 }
 
 void HttpSession::SendError(int status, std::string_view message, std::vector<HttpHeader> extra) {

@@ -173,7 +173,10 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
                                   "state-dir",
                                   "max-sessions",
                                   "max-participants",
-                                  "idle-timeout-s"}));
+                                  "idle-timeout-s",
+                                  "max-connections",
+                                  "max-connections-per-address",
+                                  "allowed-origins"}));
   ServeConfig config;
   auto strings = [&](const char* key, std::vector<std::string>* out) -> Status {
     if (!j.contains(key)) return Status::Ok();
@@ -244,6 +247,10 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
   OCTO_RETURN_IF_ERROR(integer("max-sessions", 1, 100000, &config.max_sessions));
   OCTO_RETURN_IF_ERROR(integer("max-participants", 1, 1000, &config.max_participants));
   OCTO_RETURN_IF_ERROR(integer("idle-timeout-s", 1, 30 * 86400, &config.idle_timeout_s));
+  OCTO_RETURN_IF_ERROR(integer("max-connections", 1, kMaxConnections, &config.max_connections));
+  OCTO_RETURN_IF_ERROR(integer("max-connections-per-address", 1, kMaxConnections,
+                               &config.max_connections_per_address));
+  OCTO_RETURN_IF_ERROR(strings("allowed-origins", &config.allowed_origins));
   return config;
 }
 

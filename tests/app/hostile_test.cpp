@@ -6,7 +6,8 @@
 // refused without touching the planes already stored — read back through a lossless frame of the
 // real renderer; concurrent uploads to one dataset all land; 64 concurrent maximum-size uploads
 // stay within the documented RAM bound (the others get 429 with Retry-After before their bodies
-// are read). (Load over time: soak_test.cpp.)
+// are read); WebSockets from foreign pages get 403 and clients over their connection cap 503,
+// while others are served. (Load over time: soak_test.cpp.)
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -15,6 +16,7 @@
 #include <fstream>
 #include <iterator>
 #include <latch>
+#include <memory>
 #include <optional>
 #include <string>
 #include <thread>
@@ -665,6 +667,76 @@ TEST_F(UploadMemoryTest, SixtyFourConcurrentMaximumSizeUploadsStayWithinTheDocum
   const json dataset = DatasetJson(id);
   EXPECT_EQ(dataset["planes_received"], (landed + 1) * kDepth);
   EXPECT_EQ(dataset["planes_inserted"], (landed + 1) * kDepth);
+}
+
+// Browsers send the Origin of the page that opens a WebSocket: the server's own pages (its public
+// URL, its listening address) and --allowed-origins may open one; other pages get 403 before the
+// upgrade; native clients send no Origin.
+class OriginTest : public testing::ServeFixture {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--public-url", "https://scope.lab.example/octoscope/", "--allowed-origins",
+            "https://viewer.lab.example, https://other.lab.example:8443"};
+  }
+};
+
+TEST_F(OriginTest, WebSocketsFromForeignPagesAreRefusedBeforeTheUpgrade) {
+  const std::string port = std::to_string(server_.port());
+  for (const std::string& origin :
+       {std::string(), std::string("https://scope.lab.example"),
+        std::string("https://viewer.lab.example"), std::string("https://other.lab.example:8443"),
+        "http://127.0.0.1:" + port, "http://localhost:" + port}) {
+    WsClient ws;
+    if (!origin.empty()) ws.SetHeader("Origin", origin);
+    ASSERT_TRUE(ConnectWs(ws)) << origin;
+    ASSERT_TRUE(
+        ws.Send(json{{"type", "hello"}, {"client", "hostile_test"}, {"protocol", 1}}.dump()));
+    EXPECT_TRUE(ReadEvent(ws, "welcome").has_value()) << origin;
+    ws.Close();
+  }
+  for (const std::string& origin :
+       {std::string("https://evil.example"), std::string("http://scope.lab.example"),
+        std::string("https://other.lab.example"), std::string("null"),
+        "http://127.0.0.1:" + std::to_string(server_.port() + 1)}) {
+    WsClient ws;
+    ws.SetHeader("Origin", origin);
+    EXPECT_NE(ws.Connect(server_.port(), Auth("/ws")), "") << origin;
+    EXPECT_EQ(ws.handshake_status(), 403) << origin;
+  }
+  EXPECT_TRUE(net::testing::WaitFor([&] { return Sessions() == 0; }));
+}
+
+// The connection caps, here from the --config file: a client over its cap gets 503 with
+// Retry-After at once, a WebSocket upgrade too; other clients are served.
+class ConnectionCapTest : public testing::ServeFixture {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    const fs::path config = dir_ / "caps.json";
+    std::ofstream(config) << R"({"max-connections": 100, "max-connections-per-address": 3})";
+    return {"--config", config.string()};
+  }
+};
+
+TEST_F(ConnectionCapTest, AClientOverItsCapGets503AndOthersAreServed) {
+  const uint16_t port = server_.port();
+  std::vector<std::unique_ptr<net::testing::HttpClient>> open;
+  for (int i = 0; i < 3; ++i) {
+    open.push_back(std::make_unique<net::testing::HttpClient>(port, "127.0.0.1"));
+    EXPECT_EQ(open.back()->Request(http::verb::get, "/api/health").status, 200);
+  }
+  net::testing::HttpClient over(port, "127.0.0.1");
+  const auto refused = over.Request(http::verb::get, Auth("/api/datasets"));
+  EXPECT_EQ(refused.status, 503) << refused.error;
+  EXPECT_FALSE(HeaderOf(refused, "Retry-After").empty());
+  WsClient ws;
+  EXPECT_NE(ws.Connect(port, Auth("/ws")), "");
+  EXPECT_EQ(ws.handshake_status(), 503);
+  net::testing::HttpClient other(port, "127.0.0.2");
+  EXPECT_EQ(other.Request(http::verb::get, Auth("/api/datasets")).status, 200);
+  EXPECT_EQ(open[0]->Request(http::verb::get, Auth("/api/datasets")).status, 200);
+  open.clear();
+  EXPECT_TRUE(net::testing::WaitFor(
+      [&] { return Fetch(port, http::verb::get, "/api/health").status == 200; }));
 }
 
 }  // namespace
