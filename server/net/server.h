@@ -10,7 +10,8 @@
 // credentials), JSON bodies 64 KiB and uploads 1 GiB (413, enforced while reading), WebSocket
 // messages 64 KiB (close 1009), WebSocket send queue 64 MiB (then the connection is dropped); idle
 // and stalled connections time out. Malformed HTTP gets 400 and the connection closes; other
-// connections never notice.
+// connections never notice. Connections over the caps (in all, per client address) get 503 with
+// Retry-After and close; WebSocket upgrades from pages of foreign web origins get 403.
 //
 // Shutdown(): stop accepting; idle HTTP connections close; HTTP requests in flight finish (their
 // responses carry Connection: close); WebSockets are closed with 1001 after their queued

@@ -597,7 +597,7 @@ TEST_F(UploadMemoryTest, SixtyFourConcurrentMaximumSizeUploadsStayWithinTheDocum
   }
   // One slab alone first (the ingest's and the octree's buffers); the peak is measured from here.
   PutSlab(id, 0, kDepth * kUploads, kDepth, body, 200);
-  ASSERT_TRUE(server_.ResetPeakRss());
+  server_.ResetPeakRss();  // Where allowed; else the peak since the start (at least as high).
   const uint64_t baseline_kib = server_.RssKiB();
 
   struct Outcome {
