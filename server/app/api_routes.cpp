@@ -1,6 +1,7 @@
 #include "app/api_routes.h"
 
 #include <algorithm>
+#include <optional>
 #include <span>
 #include <string_view>
 #include <utility>
@@ -44,6 +45,13 @@ HttpResponse ErrorResponse(const Status& status) {
   return HttpResponse::Error(HttpStatusFor(status), status.message());
 }
 
+// 429: an upload that does not fit now; the client retries after a second.
+HttpResponse TooManyUploads(std::string_view what) {
+  HttpResponse response = HttpResponse::Error(429, std::string(what) + "; retry");
+  response.headers.push_back({"Retry-After", "1"});
+  return response;
+}
+
 // "/api/datasets/ID/rest" → {"ID", "/rest"}; nothing when the path is not below /api/datasets/.
 bool SplitDatasetPath(std::string_view path, std::string* id, std::string* rest) {
   constexpr std::string_view kPrefix = "/api/datasets/";
@@ -70,6 +78,7 @@ struct ApiRoutes::SlabUpload {
   bool tiff = false;
   uint64_t limit = 0;  // Raw: exactly this many bytes; TIFF: at most.
   std::vector<std::byte> body;
+  UploadBudget::Reservation admitted;  // Held until the insert has finished.
 };
 
 struct ApiRoutes::SlabReader : std::enable_shared_from_this<SlabReader> {
@@ -104,12 +113,13 @@ struct ApiRoutes::SlabReader : std::enable_shared_from_this<SlabReader> {
           HttpResponse::Error(400, "slab body ended after " + std::to_string(upload->body.size()) +
                                        " of " + std::to_string(upload->limit) + " bytes"));
     }
-    routes->RunUpload(responder, [routes = routes, upload = upload, responder = responder] {
+    routes->SubmitUpload([routes = routes, upload = upload, responder = responder] {
       const protocol::SlabQuery& q = upload->query;
       Status status =
           upload->tiff ? upload->dataset->AddTiffSlab(q.channel, q.z, q.depth, upload->body, q.wait)
                        : upload->dataset->AddSlab(q.channel, q.z, q.depth, upload->body, q.wait);
       upload->body = {};
+      upload->admitted.reset();  // Before the answer: the client's next slab finds room.
       if (!status.ok()) return routes->Respond(responder, ErrorResponse(status));
       const dataset::DatasetStatus s = upload->dataset->status();
       routes->Respond(responder,
@@ -134,7 +144,9 @@ ApiRoutes::ApiRoutes(dataset::DatasetRegistry* registry, session::DatasetHub* hu
       uploads_(uploads),
       options_(std::move(options)),
       started_(std::chrono::steady_clock::now()),
-      uploads_running_(std::make_shared<std::atomic<int>>(0)) {}
+      uploads_running_(std::make_shared<std::atomic<int>>(0)),
+      upload_budget_(static_cast<uint64_t>(std::max(1, options_.max_concurrent_uploads)) *
+                     std::max<uint64_t>(1, options_.max_upload_bytes)) {}
 
 net::BodyMode ApiRoutes::BodyModeFor(const net::HttpRequest& head) {
   return IsSlabUpload(head) ? net::BodyMode::kStreamed : net::BodyMode::kBuffered;
@@ -488,7 +500,16 @@ void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
   const volume::VolumeInfo& info = upload->dataset->info();
   const uint64_t raw_bytes =
       info.PlaneVoxels() * static_cast<uint64_t>(query->depth) * volume::BytesPerSample(info.dtype);
-  upload->limit = upload->tiff ? dataset::kMaxTiffSlabBytes : raw_bytes;
+  // A slab's planes are at most --max-upload-mb, sent raw or decoded from a (smaller) TIFF.
+  if (raw_bytes > options_.max_upload_bytes) {
+    return Respond(responder,
+                   HttpResponse::Error(
+                       413, std::to_string(query->depth) + " planes of this dataset are " +
+                                std::to_string(raw_bytes) + " bytes, over the upload limit of " +
+                                std::to_string(options_.max_upload_bytes) + " bytes"));
+  }
+  upload->limit =
+      upload->tiff ? std::min(dataset::kMaxTiffSlabBytes, options_.max_upload_bytes) : raw_bytes;
   const auto length = request.body_reader->content_length();
   if (!upload->tiff && length && *length != raw_bytes) {
     return Respond(
@@ -500,6 +521,17 @@ void ApiRoutes::PutSlab(const net::HttpRequest& request, const std::string& id,
   if (length && *length > upload->limit) {
     return Respond(responder, HttpResponse::Error(413, "slab body too large"));
   }
+  // Admitted before a byte of the body is read: its body (a TIFF's declared length, or its limit)
+  // and the planes a TIFF decodes to. Answered without reading the body otherwise ("100 Continue"
+  // is never sent; a body already on its way closes the connection).
+  const uint64_t ram = upload->tiff ? length.value_or(upload->limit) + raw_bytes : raw_bytes;
+  std::optional<UploadBudget::Reservation> admitted = upload_budget_.TryReserve(ram);
+  if (!admitted) {
+    return Respond(responder,
+                   TooManyUploads("too many slab uploads at once (their bodies would pass " +
+                                  std::to_string(upload_budget_.capacity() >> 20) + " MiB)"));
+  }
+  upload->admitted = std::move(*admitted);
   if (length) upload->body.reserve(*length);
   std::make_shared<SlabReader>(this, std::move(upload), request.body_reader, responder)->Next();
 }
@@ -524,10 +556,10 @@ void ApiRoutes::Finish(const net::HttpRequest& request, const std::string& id,
 bool ApiRoutes::RunUpload(const net::HttpResponder& responder, std::function<void()> job) {
   if (uploads_running_->fetch_add(1) >= options_.max_concurrent_uploads) {
     uploads_running_->fetch_sub(1);
-    Respond(responder, HttpResponse::Error(429, "too many concurrent uploads; retry"));
+    Respond(responder, TooManyUploads("too many concurrent uploads"));
     return false;
   }
-  uploads_->Submit(next_upload_.fetch_add(1), [running = uploads_running_, job = std::move(job)] {
+  SubmitUpload([running = uploads_running_, job = std::move(job)] {
     // Released even when the job throws (the executor catches; the responder's
     // last copy then answers 500).
     struct Release {
@@ -537,6 +569,10 @@ bool ApiRoutes::RunUpload(const net::HttpResponder& responder, std::function<voi
     job();
   });
   return true;
+}
+
+void ApiRoutes::SubmitUpload(std::function<void()> job) {
+  uploads_->Submit(next_upload_.fetch_add(1), std::move(job));
 }
 
 }  // namespace octoscope::app

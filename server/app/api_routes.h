@@ -7,7 +7,10 @@
 // admins), listing and deleting view links for their owners (and admins).
 // The net layer hands requests over on I/O threads; everything that touches disk or the octree
 // (slab inserts, finishing a stream) runs on the upload workers, and slab bodies are pulled from
-// the connection piece by piece into one buffer of exactly the expected size.
+// the connection piece by piece into one buffer of exactly the expected size. A slab upload is
+// admitted into the UploadBudget (its body, and a TIFF's decoded planes) before the first byte of
+// its body is read, and holds its place until its insert has finished; one that does not fit gets
+// 429 with Retry-After, its body unread.
 //
 // Thread safety: Handle may be called from any I/O thread concurrently.
 #ifndef OCTOSCOPE_APP_API_ROUTES_H_
@@ -20,6 +23,7 @@
 #include <string>
 
 #include "app/access_control.h"
+#include "app/upload_budget.h"
 #include "dataset/dataset_registry.h"
 #include "net/api_handler.h"
 #include "session/dataset_hub.h"
@@ -37,7 +41,10 @@ struct ApiRoutesOptions {
   const AccessControl* access = nullptr;
   // Records stream creators (the same object as `access`, mutable).
   AccessControl* creators = nullptr;
-  int max_concurrent_uploads = 8;  // More at once: 429.
+  // Creating and finishing streams: at most this many at once (429 beyond). Slab uploads: their
+  // bodies and decoded planes hold at most max_concurrent_uploads x max_upload_bytes of RAM.
+  int max_concurrent_uploads = 8;
+  uint64_t max_upload_bytes = uint64_t{1} << 30;  // --max-upload-mb: a slab's planes at most.
   session::ViewStore* views = nullptr;  // /api/views; null: 404.
   // Disk I/O of view links (reading, deleting); null: the upload workers.
   LatestWinsExecutor* state_io = nullptr;
@@ -81,6 +88,8 @@ class ApiRoutes : public net::ApiHandler {
   LatestWinsExecutor* state_io() const;
   // Runs `job` on an upload worker; false (and 429 sent) when too many run already.
   bool RunUpload(const net::HttpResponder& responder, std::function<void()> job);
+  // Runs `job` on an upload worker, admitted already.
+  void SubmitUpload(std::function<void()> job);
   void Respond(const net::HttpResponder& responder, net::HttpResponse response);
 
   dataset::DatasetRegistry* registry_;
@@ -91,6 +100,7 @@ class ApiRoutes : public net::ApiHandler {
   const std::chrono::steady_clock::time_point started_;
   std::atomic<uint64_t> next_upload_{1};
   std::shared_ptr<std::atomic<int>> uploads_running_;
+  UploadBudget upload_budget_;  // Slab uploads.
 };
 
 }  // namespace octoscope::app

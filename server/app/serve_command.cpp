@@ -3,6 +3,8 @@
 // stream and watched folders), the shared session services and the HTTP/WebSocket server, prints
 // the URL to open, re-reads the users file on SIGHUP, and on SIGINT/SIGTERM shuts them down in
 // order: no new connections, sessions closed, streams finished and pages flushed, threads joined.
+#include <ifaddrs.h>
+#include <netdb.h>
 #include <signal.h>
 
 #include <cstdio>
@@ -28,6 +30,7 @@
 #include "dataset/folder_watcher.h"
 #include "encode/jpeg_encoder.h"
 #include "net/auth.h"
+#include "net/origin_policy.h"
 #include "net/server.h"
 #include "render/device.h"
 #include "render/render_service.h"
@@ -90,6 +93,26 @@ void ReloadUsers(const ServeSettings& settings, UserIds& ids, AccessControl& acc
   access.ReplaceUsers(UsersWithAdmin(std::move(*users), settings.token));
   logger.Log(LogLevel::kInfo,
              "SIGHUP: " + std::to_string(n) + " user(s) from " + settings.users_file.string());
+}
+
+// The machine's interface addresses (IPv6 ones in brackets), for origins.
+std::vector<std::string> LocalAddresses() {
+  std::vector<std::string> out;
+  ifaddrs* list = nullptr;
+  if (getifaddrs(&list) != 0) return out;
+  for (ifaddrs* a = list; a != nullptr; a = a->ifa_next) {
+    if (a->ifa_addr == nullptr) continue;
+    const int family = a->ifa_addr->sa_family;
+    if (family != AF_INET && family != AF_INET6) continue;
+    char host[NI_MAXHOST];
+    const socklen_t size = family == AF_INET ? sizeof(sockaddr_in) : sizeof(sockaddr_in6);
+    if (getnameinfo(a->ifa_addr, size, host, sizeof host, nullptr, 0, NI_NUMERICHOST) != 0) continue;
+    std::string text = host;
+    if (text.find('%') != std::string::npos) continue;  // Link-local with a zone: not in URLs.
+    out.push_back(family == AF_INET6 ? "[" + text + "]" : text);
+  }
+  freeifaddrs(list);
+  return out;
 }
 
 int WaitForStopSignal(const sigset_t& set) {
@@ -272,6 +295,24 @@ int RunServe(std::span<const std::string> args) {
   server_options.trusted_proxies = settings->trusted_proxies;
   server_options.web_root = settings->web_root;
   server_options.max_upload_bytes = settings->max_upload_mb << 20;
+  server_options.max_connections = settings->max_connections;
+  server_options.max_connections_per_address = settings->max_connections_per_address;
+  // Pages of the public URL may open WebSockets (the listening address always may; with --port 0
+  // and no --public-url the public URL is that address).
+  server_options.allowed_origins = settings->allowed_origins;
+  if (const std::string base = PublicBaseUrl(*settings, settings->port);
+      (!settings->public_url.empty() || settings->port != 0) && net::ParseWebOrigin(base).ok()) {
+    server_options.allowed_origins.push_back(base);
+  }
+  // Listening on every interface without a public URL (a lab PC): the machine's own addresses
+  // are its origins too, so colleagues may open it by IP as well as by name.
+  if (settings->public_url.empty() && settings->port != 0 &&
+      (settings->bind == "0.0.0.0" || settings->bind == "::")) {
+    for (const std::string& address : LocalAddresses()) {
+      server_options.allowed_origins.push_back("http://" + address + ":" +
+                                               std::to_string(settings->port));
+    }
+  }
   ApiRoutesOptions routes_options;
   routes_options.version = kVersion;
   routes_options.access = access.get();
@@ -280,6 +321,7 @@ int RunServe(std::span<const std::string> args) {
   routes_options.state_io = state_io.get();
   routes_options.link_base = &link_base;
   routes_options.max_streams_per_user = settings->limits.max_streams_per_user;
+  routes_options.max_upload_bytes = server_options.max_upload_bytes;
   auto routes = std::make_shared<ApiRoutes>(registry->get(), hub.get(), &metrics, uploads.get(),
                                             routes_options);
   auto server = net::Server::Start(

@@ -7,9 +7,11 @@
 #include <sstream>
 
 #include "app/access_control.h"
+#include "net/origin_policy.h"
 #include "net/trusted_proxies.h"
 #include "protocol/serve_config.h"
 #include "util/random_token.h"
+#include "util/strings.h"
 
 #ifndef OCTOSCOPE_SOURCE_DIR
 #define OCTOSCOPE_SOURCE_DIR ""
@@ -131,6 +133,12 @@ void AddServeFlags(Flags& flags) {
                  "2");
   flags.AddValue("max-messages-per-second", "N",
                  "messages one participant may send per second (bursts of twice that)", "200");
+  flags.AddValue("max-connections", "N", "open connections in all (503 beyond)", "1024");
+  flags.AddValue("max-connections-per-address", "N",
+                 "open connections per client address (503 beyond)", "64");
+  flags.AddValue("allowed-origins", "URL",
+                 "pages of this origin may open WebSockets too, besides the public URL's "
+                 "(repeatable, or comma-separated)");
 }
 
 Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
@@ -258,6 +266,23 @@ Result<ServeSettings> ResolveServeSettings(const Flags& flags) {
             &s.limits.max_messages_per_second}}) {
     OCTO_ASSIGN_OR_RETURN(const int64_t value, integer(p.flag, p.config, *p.out, p.lo, p.hi));
     *p.out = static_cast<int>(value);
+  }
+  OCTO_ASSIGN_OR_RETURN(
+      const int64_t max_connections,
+      integer("max-connections", config.max_connections, 1024, 1, protocol::kMaxConnections));
+  s.max_connections = static_cast<size_t>(max_connections);
+  OCTO_ASSIGN_OR_RETURN(const int64_t per_address,
+                        integer("max-connections-per-address", config.max_connections_per_address,
+                                64, 1, protocol::kMaxConnections));
+  s.max_connections_per_address = static_cast<size_t>(per_address);
+  for (const std::string& list :
+       flags.Has("allowed-origins") ? flags.GetAll("allowed-origins") : config.allowed_origins) {
+    for (std::string_view origin : Split(list, ',')) {
+      if (!TrimWhitespace(origin).empty()) s.allowed_origins.emplace_back(TrimWhitespace(origin));
+    }
+  }
+  if (auto origins = net::OriginPolicy::Parse(s.allowed_origins); !origins.ok()) {
+    return InvalidArgumentError("--allowed-origins: " + origins.status().message());
   }
 
   // Users: from --users, --users-file or the config (one of them).

@@ -2,7 +2,8 @@
 // on the command line wins over the file; docs/server.md "Configuration"), with defaults
 // resolved and checked: the cache folder, the web client's folder, the admin token (given, read
 // from a file, or a fresh random 128-bit one when there are no users), the users, the public URL,
-// trusted proxies, the state folder and the session limits, and the safety rule that a
+// trusted proxies, the state folder, the session and connection limits, the allowed web origins,
+// and the safety rule that a
 // non-loopback bind needs an explicit token or users.
 //
 // Thread safety: functions of the main thread at start-up.
@@ -66,6 +67,11 @@ struct ServeSettings {
   std::filesystem::path users_file;
   std::filesystem::path state_dir;  // View links and other durable state.
   ServerLimits limits;
+  // Connections (net::ServerOptions): caps, and the web origins besides the server's own whose
+  // pages may open WebSockets (checked).
+  size_t max_connections = 1024;
+  size_t max_connections_per_address = 64;
+  std::vector<std::string> allowed_origins;
 };
 
 void AddServeFlags(Flags& flags);

@@ -37,6 +37,14 @@ constexpr std::string_view kContinue = "HTTP/1.1 100 Continue\r\n\r\n";
 std::string_view Std(beast::string_view s) { return {s.data(), s.size()}; }
 beast::string_view Beast(std::string_view s) { return {s.data(), s.size()}; }
 
+// The last item of a comma-separated header value (the proxy nearest to us appends last).
+std::string_view LastListItem(std::string_view value) {
+  if (const size_t comma = value.rfind(','); comma != std::string_view::npos) {
+    value = value.substr(comma + 1);
+  }
+  return TrimWhitespace(value);
+}
+
 bool IsHttpParseError(const beast::error_code& ec) {
   return ec.category() == http::make_error_code(http::error::bad_method).category();
 }
@@ -52,6 +60,18 @@ asio::ip::address PeerAddress(const tcp::socket& socket) {
   beast::error_code ec;
   const tcp::endpoint e = socket.remote_endpoint(ec);
   return ec ? asio::ip::address() : e.address();
+}
+
+// `path` with the segment after any of `prefixes` replaced by "<redacted>" (view-link ids are
+// credentials: whoever has one opens the view).
+std::string RedactPath(std::string_view path, const std::vector<std::string>& prefixes) {
+  for (const std::string& prefix : prefixes) {
+    if (prefix.empty() || !path.starts_with(prefix) || path.size() == prefix.size()) continue;
+    const size_t end = path.find('/', prefix.size());
+    return prefix + "<redacted>" +
+           std::string(end == std::string_view::npos ? std::string_view() : path.substr(end));
+  }
+  return std::string(path);
 }
 
 // A header value may not contain line breaks (they would forge headers).
@@ -88,11 +108,22 @@ class UploadReader : public BodyReader {
 
 }  // namespace
 
-HttpSession::HttpSession(tcp::socket socket, std::shared_ptr<ServerCore> core)
+void ApplyCommonHeaders(http::fields& fields) {
+  fields.set(http::field::server, "octoscope");
+  fields.set("X-Content-Type-Options", "nosniff");
+  // Pages are opened with ?token=...: never leak it to another site through Referer.
+  fields.set("Referrer-Policy", "no-referrer");
+}
+
+HttpSession::HttpSession(tcp::socket socket, std::shared_ptr<ServerCore> core,
+                         ConnectionLimits::Slot total, ConnectionLimits::Slot client)
     : core_(std::move(core)),
       stream_(std::move(socket)),
       buffer_(core_->options.max_header_bytes + (size_t{64} << 10)),
       peer_(PeerAddress(stream_.socket())),
+      via_proxy_(core_->proxies.Contains(peer_)),
+      total_slot_(std::move(total)),
+      client_slot_(std::move(client)),
       peer_remote_(Endpoint(stream_.socket())),
       remote_(peer_remote_) {}
 
@@ -140,6 +171,7 @@ void HttpSession::DoReadHeader() {
   deferred_response_.reset();
   piece_.clear();
   piece_.shrink_to_fit();
+  if (via_proxy_) client_slot_.reset();  // Idle, the connection speaks for nobody.
   header_parser_.emplace();
   header_parser_->header_limit(static_cast<uint32_t>(core_->options.max_header_bytes));
   // Body limits depend on the route; they are set once the header has been looked at. (Not
@@ -199,16 +231,48 @@ void HttpSession::OnReadHeader(beast::error_code ec) {
 void HttpSession::IdentifyClient() {
   remote_ = peer_remote_;
   scheme_ = "http";
-  if (core_->proxies.empty() || !core_->proxies.Contains(peer_)) return;
+  forwarded_client_.clear();
+  if (!via_proxy_) return;
   const auto& request = header_parser_->get();
-  const std::string client = core_->proxies.ClientAddress(peer_, Std(request["X-Forwarded-For"]));
-  if (!client.empty()) remote_ = client;
-  // The proxy nearest to us appends last.
-  std::string_view proto = Std(request["X-Forwarded-Proto"]);
-  if (const size_t comma = proto.rfind(','); comma != std::string_view::npos) {
-    proto = proto.substr(comma + 1);
+  forwarded_client_ = core_->proxies.ClientAddress(peer_, Std(request["X-Forwarded-For"]));
+  if (!forwarded_client_.empty()) remote_ = forwarded_client_;
+  if (EqualsIgnoreCase(LastListItem(Std(request["X-Forwarded-Proto"])), "https")) scheme_ = "https";
+}
+
+bool HttpSession::AdmitForwardedClient() {
+  // Direct peers took their place at accept; the proxy's own requests count in all only.
+  if (!via_proxy_ || forwarded_client_.empty()) return true;
+  std::optional<ConnectionLimits::Slot> slot = core_->limits.AcquireAddress(forwarded_client_);
+  if (!slot) {
+    SendError(503,
+              "too many connections from " + forwarded_client_ + " (max-connections-per-address " +
+                  std::to_string(core_->limits.max_per_address()) + "); retry later",
+              {{"Retry-After", kRetryAfterSeconds}});
+    return false;
   }
-  if (EqualsIgnoreCase(TrimWhitespace(proto), "https")) scheme_ = "https";
+  client_slot_ = std::move(*slot);
+  return true;
+}
+
+bool HttpSession::OriginAllowed() {
+  const auto& request = header_parser_->get();
+  const auto origin = request.find(http::field::origin);
+  if (origin == request.end()) return true;  // Not a browser.
+  std::optional<WebOrigin> forwarded;
+  if (via_proxy_) {
+    // The origin the proxy serves: the scheme it says, the host the browser asked it for.
+    std::string_view host = LastListItem(Std(request["X-Forwarded-Host"]));
+    if (host.empty()) host = TrimWhitespace(Std(request[http::field::host]));
+    if (Result<WebOrigin> served = ParseAuthority(scheme_, host); served.ok()) {
+      forwarded = std::move(*served);
+    }
+  }
+  const std::string_view value = Std(origin->value());
+  if (core_->origins.Allows(value, forwarded)) return true;
+  core_->Log(LogLevel::kWarning, "WS " + remote_ + " refused: a page of Origin \"" +
+                                     Printable(value, 100) +
+                                     "\" may not open WebSockets here (allowed-origins)");
+  return false;
 }
 
 bool HttpSession::Authenticate() {
@@ -237,10 +301,13 @@ void HttpSession::Route() {
     SendError(503, "the server is shutting down");
     return;
   }
+  if (!AdmitForwardedClient()) return;
   const auto& request = header_parser_->get();
   if (websocket::is_upgrade(request)) {
     if (path_ != "/ws") {
       SendError(404, "no WebSocket endpoint at this path");
+    } else if (!OriginAllowed()) {
+      SendError(403, "this page's origin may not open WebSockets here");
     } else if (Authenticate()) {
       UpgradeToWebSocket();
     }
@@ -424,7 +491,7 @@ void HttpSession::CallHandler() {
   }
   if (threw) {
     core_->Log(LogLevel::kError,
-               "ApiHandler::Handle threw on " + method_ + " " + path_ + ": " + what);
+               "ApiHandler::Handle threw on " + method_ + " " + LoggedPath() + ": " + what);
     responder.Respond(HttpResponse::Error(500, "internal error: " + what));
   }
 }
@@ -500,8 +567,8 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
       FailPiece(ResourceExhaustedError(message));
       SendError(413, message);
     } else if (ec == beast::error::timeout) {
-      core_->Log(LogLevel::kWarning,
-                 "HTTP " + remote_ + " " + method_ + " " + path_ + ": upload stalled, closing");
+      core_->Log(LogLevel::kWarning, "HTTP " + remote_ + " " + method_ + " " + LoggedPath() +
+                                         ": upload stalled, closing");
       FailPiece(UnavailableError("the upload stalled"));
       CloseNow();
     } else if (IsHttpParseError(ec) && ec != http::error::partial_message &&
@@ -510,7 +577,7 @@ void HttpSession::OnReadPiece(beast::error_code ec) {
       FailPiece(InvalidArgumentError(message));
       SendError(400, message);
     } else {
-      core_->Log(LogLevel::kInfo, "HTTP " + remote_ + " " + method_ + " " + path_ +
+      core_->Log(LogLevel::kInfo, "HTTP " + remote_ + " " + method_ + " " + LoggedPath() +
                                       ": client went away during the upload");
       FailPiece(UnavailableError("the client went away during the upload: " + ec.message()));
       CloseNow();
@@ -574,20 +641,19 @@ void HttpSession::UpgradeToWebSocket() {
   info.query = StripCredentials(query_);
   info.principal = std::move(principal_);
   auto session =
-      std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info));
+      std::make_shared<WebSocketSession>(stream_.release_socket(), core_, std::move(info),
+                                         std::move(total_slot_), std::move(client_slot_));
   state_ = State::kClosed;  // This object ends here; the socket lives on in the WebSocket.
   session->Start(std::move(request));
 }
 
-bool HttpSession::MustClose() const {
-  return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ || core_->shutting_down;
+std::string HttpSession::LoggedPath() const {
+  if (path_.empty()) return "-";
+  return Printable(RedactPath(path_, core_->options.secret_path_prefixes), 200);
 }
 
-void HttpSession::ApplyCommonHeaders(http::fields& fields) const {
-  fields.set(http::field::server, "octoscope");
-  fields.set("X-Content-Type-Options", "nosniff");
-  // Pages are opened with ?token=...: never leak it to another site through Referer.
-  fields.set("Referrer-Policy", "no-referrer");
+bool HttpSession::MustClose() const {
+  return force_close_ || !keep_alive_ || !body_complete_ || shutting_down_ || core_->shutting_down;
 }
 
 void HttpSession::SendError(int status, std::string_view message, std::vector<HttpHeader> extra) {
@@ -600,7 +666,7 @@ void HttpSession::SendError(int status, std::string_view message, std::vector<Ht
 
 void HttpSession::SendResponse(HttpResponse r) {
   if (r.status < 100 || r.status > 599) {
-    core_->Log(LogLevel::kError, "handler answered " + method_ + " " + path_ +
+    core_->Log(LogLevel::kError, "handler answered " + method_ + " " + LoggedPath() +
                                      " with invalid status " + std::to_string(r.status));
     r = HttpResponse::Error(500, "internal error: invalid response status");
   }
@@ -649,11 +715,12 @@ void HttpSession::OnWrite(bool close, int status, uint64_t body_bytes, beast::er
           .count();
   char timing[32];
   std::snprintf(timing, sizeof timing, "%.1f ms", ms);
-  // The path is logged decoded and without the query: the token never reaches the log.
+  // The path is logged decoded, without the query and with secret segments redacted: tokens and
+  // view-link ids never reach the log.
   core_->Log(status >= 500 ? LogLevel::kWarning : LogLevel::kInfo,
              "HTTP " + remote_ + " " + (method_.empty() ? "-" : Printable(method_, 16)) + " " +
-                 (path_.empty() ? "-" : Printable(path_, 200)) + " " + std::to_string(status) +
-                 " " + std::to_string(body_bytes) + " B " + timing + (ec ? " (write failed)" : ""));
+                 LoggedPath() + " " + std::to_string(status) + " " + std::to_string(body_bytes) +
+                 " B " + timing + (ec ? " (write failed)" : ""));
   if (state_ == State::kClosed) return;
   if (ec) {
     CloseNow();

@@ -26,13 +26,20 @@
 #include <vector>
 
 #include "net/api_handler.h"
+#include "net/connection_limits.h"
 #include "net/server_core.h"
 
 namespace octoscope::net::detail {
 
+// Server, X-Content-Type-Options and Referrer-Policy: on every response of the server.
+void ApplyCommonHeaders(boost::beast::http::fields& fields);
+
 class HttpSession : public Connection, public std::enable_shared_from_this<HttpSession> {
  public:
-  HttpSession(boost::asio::ip::tcp::socket socket, std::shared_ptr<ServerCore> core);
+  // `total`: the connection's place among all (ConnectionLimits); `client`: its peer's place, or
+  // nothing for a trusted proxy (each request through it takes its client's place).
+  HttpSession(boost::asio::ip::tcp::socket socket, std::shared_ptr<ServerCore> core,
+              ConnectionLimits::Slot total, ConnectionLimits::Slot client);
   ~HttpSession() override;
 
   // Registers the connection and starts reading.
@@ -52,8 +59,13 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
 
   void DoReadHeader();
   void OnReadHeader(boost::beast::error_code ec);
-  // Sets remote_ and scheme_ of the current request (trusted proxy headers).
+  // Sets remote_, scheme_ and forwarded_client_ of the current request (trusted proxy headers).
   void IdentifyClient();
+  // Through a trusted proxy: takes the forwarded client's place (ConnectionLimits); over its cap
+  // a 503 was sent and false is returned.
+  bool AdmitForwardedClient();
+  // Whether the Origin of a WebSocket upgrade may open one (OriginPolicy); logs a refusal.
+  bool OriginAllowed();
   void Route();
   // Asks the Authenticator; on success the principal is kept in principal_, else a 401 with the
   // Authenticator's message was sent and false is returned.
@@ -80,17 +92,24 @@ class HttpSession : public Connection, public std::enable_shared_from_this<HttpS
   void CloseGracefully();
   void OnLinger(boost::beast::error_code ec, size_t bytes);
   void CloseNow();
+  // The request's path for log lines: printable, secret segments redacted, "-" when unknown.
+  std::string LoggedPath() const;
   // Whether the response to the current request must close the connection.
   bool MustClose() const;
-  void ApplyCommonHeaders(boost::beast::http::fields& fields) const;
 
   const std::shared_ptr<ServerCore> core_;
   boost::beast::tcp_stream stream_;
   boost::beast::flat_buffer buffer_;
   boost::asio::ip::address peer_;  // The socket's peer.
+  const bool via_proxy_;           // The peer is a trusted proxy.
+  ConnectionLimits::Slot total_slot_;
+  // The client's place: the peer's for the connection's life; through a trusted proxy the
+  // current request's forwarded client's, given back between requests.
+  ConnectionLimits::Slot client_slot_;
   std::string peer_remote_;        // "ADDRESS:PORT" of the peer.
   std::string remote_;             // The request's client: the peer, or whom a trusted proxy names.
   std::string scheme_ = "http";  // Of the current request (X-Forwarded-Proto from a trusted proxy).
+  std::string forwarded_client_;  // The address a trusted proxy names for the request, or "".
   uint64_t registry_id_ = 0;
   State state_ = State::kReadingHeader;
   bool shutting_down_ = false;

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "net/http_session.h"
+#include "net/refused_connection.h"
 #include "net/server_core.h"
 
 namespace octoscope::net {
@@ -89,11 +90,54 @@ class Listener : public std::enable_shared_from_this<Listener> {
     beast::error_code ignored;
     socket.set_option(tcp::no_delay(true), ignored);  // Frames are latency-bound.
     try {
-      std::make_shared<detail::HttpSession>(std::move(socket), core_)->Start();
+      Admit(std::move(socket));
     } catch (const std::exception& e) {
       core_->Log(LogLevel::kError, std::string("cannot start a connection: ") + e.what());
     }
     DoAccept();
+  }
+
+  // Serves the connection, or refuses it when it is over a cap (ConnectionLimits): in all, or
+  // of its peer's address unless the peer is a trusted proxy (whose requests are capped by the
+  // clients they name, once their headers are read).
+  void Admit(tcp::socket socket) {
+    using Slot = detail::ConnectionLimits::Slot;
+    detail::ConnectionLimits& limits = core_->limits;
+    beast::error_code ec;
+    const tcp::endpoint peer = socket.remote_endpoint(ec);
+    std::optional<Slot> total = limits.AcquireTotal();
+    if (!total) {
+      return Refuse(std::move(socket), peer, "too many connections to this server",
+                    std::to_string(limits.max_total()) + " connections open (max-connections " +
+                        std::to_string(limits.max_total()) + ")");
+    }
+    std::optional<Slot> client;
+    if (!ec && !core_->proxies.Contains(peer.address())) {
+      const std::string address = AddressText(peer.address());
+      client = limits.AcquireAddress(address);
+      if (!client) {
+        return Refuse(std::move(socket), peer, "too many connections from " + address,
+                      std::to_string(limits.max_per_address()) + " connections from " + address +
+                          " open (max-connections-per-address " +
+                          std::to_string(limits.max_per_address()) + ")");
+      }
+    }
+    std::make_shared<detail::HttpSession>(std::move(socket), core_, std::move(*total),
+                                          client ? std::move(*client) : Slot())
+        ->Start();
+  }
+
+  void Refuse(tcp::socket socket, const tcp::endpoint& peer, const std::string& message,
+              const std::string& why) {
+    if (const uint64_t refused = core_->limits.CountRefusal(std::chrono::steady_clock::now())) {
+      core_->Log(LogLevel::kWarning, "HTTP " + peer.address().to_string() + ":" +
+                                         std::to_string(peer.port()) + " refused: " + why +
+                                         (refused > 1 ? "; " + std::to_string(refused) +
+                                                            " refused since the last report"
+                                                      : ""));
+    }
+    std::make_shared<detail::RefusedConnection>(std::move(socket), core_, message + "; retry later")
+        ->Start();
   }
 
   asio::io_context& ioc_;
@@ -115,6 +159,9 @@ Status ValidateOptions(const ServerOptions& o) {
   if (o.max_json_body_bytes == 0 || o.max_upload_bytes == 0 || o.max_ws_message_bytes == 0 ||
       o.max_ws_queue_bytes == 0) {
     return InvalidArgumentError("server: size limits must be positive");
+  }
+  if (o.max_connections == 0 || o.max_connections_per_address == 0) {
+    return InvalidArgumentError("server: connection caps must be at least 1");
   }
   if (o.upload_chunk_bytes < 4096 || o.upload_chunk_bytes > (size_t{256} << 20)) {
     return InvalidArgumentError("server: upload_chunk_bytes must be in [4 KiB, 256 MiB]");
@@ -163,6 +210,10 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
   }
   auto proxies = TrustedProxies::Parse(options.trusted_proxies);
   if (!proxies.ok()) return InvalidArgumentError("server: " + proxies.status().message());
+  auto origins = OriginPolicy::Parse(options.allowed_origins);
+  if (!origins.ok()) {
+    return InvalidArgumentError("server: allowed origin " + origins.status().message());
+  }
   const tcp::endpoint endpoint(address, options.port);
   const int threads = options.io_threads;
 
@@ -176,6 +227,8 @@ Result<std::unique_ptr<Server>> Server::Start(ServerOptions options,
   impl.listener = std::make_shared<Listener>(impl.ioc, impl.core);
   OCTO_RETURN_IF_ERROR(impl.listener->Open(endpoint));
   server->port_ = impl.listener->port();
+  impl.core->origins = std::move(*origins);
+  impl.core->origins.AllowListener(address, server->port_);
 
   impl.work.emplace(asio::make_work_guard(impl.ioc));
   for (int i = 0; i < threads; ++i) {

@@ -10,7 +10,8 @@
 // credentials), JSON bodies 64 KiB and uploads 1 GiB (413, enforced while reading), WebSocket
 // messages 64 KiB (close 1009), WebSocket send queue 64 MiB (then the connection is dropped); idle
 // and stalled connections time out. Malformed HTTP gets 400 and the connection closes; other
-// connections never notice.
+// connections never notice. Connections over the caps (in all, per client address) get 503 with
+// Retry-After and close; WebSocket upgrades from pages of foreign web origins get 403.
 //
 // Shutdown(): stop accepting; idle HTTP connections close; HTTP requests in flight finish (their
 // responses carry Connection: close); WebSockets are closed with 1001 after their queued
@@ -49,6 +50,20 @@ struct ServerOptions {
   std::vector<std::string> trusted_proxies;
   // The web client's files; empty serves none (every static path is 404).
   std::filesystem::path web_root;
+  // Pages of these web origins ("scheme://host[:port]"; of a URL only its origin counts) may open
+  // WebSockets at /ws, besides the server's own listening address and the origin a trusted proxy
+  // forwards (net/origin_policy.h); an upgrade with any other Origin header gets 403. Requests
+  // without Origin (native clients) are not browsers' and pass.
+  std::vector<std::string> allowed_origins;
+  // Caps on open connections, HTTP and WebSocket (docs/server.md, "Safety"): in all, checked at
+  // accept, and per client address: the peer's, checked at accept, or for requests through a
+  // trusted proxy the forwarded client's, checked once the request header is read (the proxy
+  // itself counts in all only). Over a cap: 503 with Retry-After, and the connection closes.
+  size_t max_connections = 1024;
+  size_t max_connections_per_address = 64;
+  // Paths whose segment after one of these prefixes is a credential (the view-link ids of
+  // /api/views/ID): log lines show "PREFIX<redacted>" instead, whatever the method.
+  std::vector<std::string> secret_path_prefixes = {"/api/views/"};
 
   size_t max_header_bytes = 8 << 10;
   size_t max_json_body_bytes = 64 << 10;

@@ -28,6 +28,8 @@
 #include <vector>
 
 #include "net/api_handler.h"
+#include "net/connection_limits.h"
+#include "net/origin_policy.h"
 #include "net/server.h"
 #include "net/trusted_proxies.h"
 #include "net/ws_handler.h"
@@ -70,7 +72,8 @@ struct ServerCore {
       : options(std::move(opts)),
         api(std::move(api_handler)),
         ws_factory(std::move(factory)),
-        logger(log) {}
+        logger(log),
+        limits(options.max_connections, options.max_connections_per_address) {}
 
   // Posts fn(session) to the session's strand unless the server stopped or the session is
   // gone; false then. Session must have executor().
@@ -118,6 +121,9 @@ struct ServerCore {
   Logger& logger;
   std::filesystem::path web_root;  // Canonical, or empty. Set before the first connection.
   TrustedProxies proxies;  // Parsed options.trusted_proxies. Set before the first connection.
+  // Parsed options.allowed_origins plus the listening address. Set before the first connection.
+  OriginPolicy origins;
+  ConnectionLimits limits;
   ConnectionRegistry registry;
   std::atomic<bool> shutting_down{false};
   std::atomic<size_t> websockets{0};

@@ -48,6 +48,8 @@ bool SamePrefix(const ip::address& a, const ip::address& b, int bits) {
 
 }  // namespace
 
+std::string AddressText(const ip::address& address) { return Normalize(address).to_string(); }
+
 Result<TrustedProxies> TrustedProxies::Parse(const std::vector<std::string>& entries) {
   TrustedProxies out;
   for (const std::string& entry : entries) {
@@ -99,7 +101,7 @@ std::string TrustedProxies::ClientAddress(const ip::address& peer,
     boost::system::error_code ec;
     const ip::address a = ip::make_address(std::string(item), ec);
     if (ec) break;  // A malformed entry ends what can be believed.
-    client = Normalize(a).to_string();
+    client = AddressText(a);
     if (!Contains(a)) break;
   }
   return client;

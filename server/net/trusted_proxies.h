@@ -15,6 +15,10 @@
 
 namespace octoscope::net {
 
+// The address as text, an IPv4-mapped IPv6 address as its IPv4 address ("203.0.113.7"): how
+// client addresses are named (logs, ClientAddress, the per-address connection cap).
+std::string AddressText(const boost::asio::ip::address& address);
+
 class TrustedProxies {
  public:
   // Each entry an IPv4 or IPv6 address ("127.0.0.1", "::1") or a network in CIDR notation

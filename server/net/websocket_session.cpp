@@ -127,10 +127,13 @@ void OutgoingMessage::Complete(bool sent) {
 }
 
 WebSocketSession::WebSocketSession(tcp::socket socket, std::shared_ptr<ServerCore> core,
-                                   WsConnectInfo info)
+                                   WsConnectInfo info, ConnectionLimits::Slot total,
+                                   ConnectionLimits::Slot client)
     : core_(std::move(core)),
       ws_(std::move(socket)),
       info_(std::move(info)),
+      total_slot_(std::move(total)),
+      client_slot_(std::move(client)),
       close_timer_(ws_.get_executor()),
       sink_state_(std::make_shared<SinkState>()) {
   ++core_->websockets;

@@ -26,6 +26,7 @@
 #include <string>
 #include <vector>
 
+#include "net/connection_limits.h"
 #include "net/server_core.h"
 #include "net/ws_handler.h"
 
@@ -65,8 +66,10 @@ class OutgoingMessage {
 
 class WebSocketSession : public Connection, public std::enable_shared_from_this<WebSocketSession> {
  public:
+  // `total`, `client`: the upgraded connection's places in the ConnectionLimits, held until it
+  // ends.
   WebSocketSession(boost::asio::ip::tcp::socket socket, std::shared_ptr<ServerCore> core,
-                   WsConnectInfo info);
+                   WsConnectInfo info, ConnectionLimits::Slot total, ConnectionLimits::Slot client);
   ~WebSocketSession() override;
 
   // Registers the connection and answers the upgrade request. REQUIRES: on the strand.
@@ -96,6 +99,8 @@ class WebSocketSession : public Connection, public std::enable_shared_from_this<
   const std::shared_ptr<ServerCore> core_;
   boost::beast::websocket::stream<boost::beast::tcp_stream> ws_;
   const WsConnectInfo info_;
+  ConnectionLimits::Slot total_slot_;
+  ConnectionLimits::Slot client_slot_;
   boost::beast::flat_buffer read_buffer_;
   std::deque<OutgoingMessage> queue_;
   boost::asio::steady_timer close_timer_;

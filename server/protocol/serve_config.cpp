@@ -179,7 +179,10 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
                                   "max-view-links-per-user",
                                   "view-links-per-minute",
                                   "max-screenshots-in-flight",
-                                  "max-messages-per-second"}));
+                                  "max-messages-per-second",
+                                  "max-connections",
+                                  "max-connections-per-address",
+                                  "allowed-origins"}));
   ServeConfig config;
   auto strings = [&](const char* key, std::vector<std::string>* out) -> Status {
     if (!j.contains(key)) return Status::Ok();
@@ -261,6 +264,10 @@ Result<ServeConfig> ParseServeConfig(std::string_view text, std::string_view wha
       integer("max-screenshots-in-flight", 1, 64, &config.max_screenshots_in_flight));
   OCTO_RETURN_IF_ERROR(
       integer("max-messages-per-second", 10, 100000, &config.max_messages_per_second));
+  OCTO_RETURN_IF_ERROR(integer("max-connections", 1, kMaxConnections, &config.max_connections));
+  OCTO_RETURN_IF_ERROR(integer("max-connections-per-address", 1, kMaxConnections,
+                               &config.max_connections_per_address));
+  OCTO_RETURN_IF_ERROR(strings("allowed-origins", &config.allowed_origins));
   return config;
 }
 

@@ -63,7 +63,14 @@ struct ServeConfig {
   std::optional<int64_t> view_links_per_minute;      // [1, 100000].
   std::optional<int64_t> max_screenshots_in_flight;  // [1, 64].
   std::optional<int64_t> max_messages_per_second;    // [10, 100000].
+  // Connections: caps, and the web origins besides the server's own whose pages may open
+  // WebSockets (origins or URLs, checked by net::OriginPolicy).
+  std::optional<int64_t> max_connections;              // [1, kMaxConnections].
+  std::optional<int64_t> max_connections_per_address;  // [1, kMaxConnections].
+  std::vector<std::string> allowed_origins;
 };
+
+inline constexpr int64_t kMaxConnections = 1000000;
 
 // "2027-01-31T00:00:00Z" (RFC 3339 in UTC, optional fraction of a second, "z" or "Z") as seconds
 // since 1970; kInvalidArgument naming `path` otherwise.

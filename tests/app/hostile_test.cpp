@@ -2,9 +2,12 @@
 // Wrong credentials learn nothing; malformed, oversized and binary messages close only their
 // own connection (close codes of docs/protocol.md) while a well-behaved client keeps getting
 // frames; malformed uploads (wrong sizes, lying Content-Length, chunked bodies over the limit,
-// garbage TIFF) and uploads abandoned halfway are refused without touching the planes already
-// stored — read back through a lossless frame of the real renderer; concurrent uploads to one
-// dataset all land. (Load over time: soak_test.cpp.)
+// garbage TIFF, TIFFs decoding to more than the upload limit) and uploads abandoned halfway are
+// refused without touching the planes already stored — read back through a lossless frame of the
+// real renderer; concurrent uploads to one dataset all land; 64 concurrent maximum-size uploads
+// stay within the documented RAM bound (the others get 429 with Retry-After before their bodies
+// are read); WebSockets from foreign pages get 403 and clients over their connection cap 503,
+// while others are served. (Load over time: soak_test.cpp.)
 #include <gtest/gtest.h>
 
 #include <atomic>
@@ -12,6 +15,8 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <latch>
+#include <memory>
 #include <optional>
 #include <string>
 #include <thread>
@@ -69,6 +74,12 @@ class HostileTest : public testing::ServeFixture {
 
   int tiff_files_ = 0;
 };
+
+// The value of a response header, "" when absent.
+std::string HeaderOf(const net::testing::HttpResult& r, std::string_view name) {
+  const auto it = r.headers.find(boost::beast::string_view(name.data(), name.size()));
+  return it == r.headers.end() ? "" : std::string(it->value());
+}
 
 // Every dataset-scoped route, with the method it takes and a body.
 struct Route {
@@ -623,6 +634,209 @@ TEST_F(LimitsTest, OnePrincipalCannotTakeWhatEveryoneShares) {
   EXPECT_EQ(errors, 1);
   uint64_t version = 0;
   EXPECT_TRUE(CameraGetsAFrame(first, 1, &version));
+}
+
+TEST_F(HostileTest, ATiffSlabMayNotDecodeToMoreThanTheUploadLimit) {
+  // Planes of 2 MiB: one is over --max-upload-mb (1), as a raw body (413 from the HTTP layer) and
+  // as a small deflated TIFF alike.
+  auto created = Fetch(
+      server_.port(), http::verb::post, Auth("/api/datasets"), {},
+      json{
+          {"name", "large planes"}, {"size", {1024, 1024, 4}}, {"channels", 1}, {"dtype", "uint16"}}
+          .dump());
+  ASSERT_EQ(created.status, 201) << created.body;
+  const std::string id = json::parse(created.body)["id"];
+  testing::TiffFixtureSpec spec;
+  spec.width = 1024;
+  spec.height = 1024;
+  spec.compression = 8;  // Deflate: a constant plane is a few KiB.
+  spec.rows_per_strip = 64;
+  ASSERT_TRUE(testing::WriteTiffFixture(dir_ / "large.tif", spec,
+                                        [](uint32_t, uint32_t, int, int) { return 500.0; }));
+  const auto bytes = testing::ReadAll(dir_ / "large.tif");
+  ASSERT_LT(bytes.size(), size_t{1} << 20);
+  auto r = Fetch(server_.port(), http::verb::put, SlabTarget(id, 0, 0, 1),
+                 {{"Content-Type", "image/tiff"}}, std::string(bytes.begin(), bytes.end()));
+  EXPECT_EQ(r.status, 413) << r.body;
+  EXPECT_EQ(Fetch(server_.port(), http::verb::put, SlabTarget(id, 0, 0, 1),
+                  {{"Content-Type", "application/octet-stream"}}, std::string(2 << 20, '\0'))
+                .status,
+            413);
+  EXPECT_EQ(DatasetJson(id)["planes_received"], 0);
+}
+
+// docs/api.md: uploads hold at most 8 x --max-upload-mb of slab bodies in RAM.
+class UploadMemoryTest : public testing::ServeFixture {
+ protected:
+  static constexpr int kUploadMb = 32;
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--max-upload-mb", std::to_string(kUploadMb), "--ram-mb", "64"};
+  }
+};
+
+TEST_F(UploadMemoryTest, SixtyFourConcurrentMaximumSizeUploadsStayWithinTheDocumentedBound) {
+  // 512 x 512 uint16 planes: 64 of them are one maximum-size slab (32 MiB). Every slab is
+  // constant, so inserting it is cheap: what the server holds is the bodies.
+  constexpr int64_t kX = 512, kY = 512, kDepth = 64;
+  constexpr int kUploads = 64;
+  const uint64_t slab_bytes = uint64_t{kUploadMb} << 20;
+  ASSERT_EQ(static_cast<uint64_t>(kX * kY * kDepth * 2), slab_bytes);
+  auto created = Fetch(server_.port(), http::verb::post, Auth("/api/datasets"), {},
+                       json{{"name", "upload memory"},
+                            {"size", {kX, kY, kDepth * (kUploads + 1)}},
+                            {"channels", 1},
+                            {"dtype", "uint16"}}
+                           .dump());
+  ASSERT_EQ(created.status, 201) << created.body;
+  const std::string id = json::parse(created.body)["id"];
+  std::string body(slab_bytes, '\0');
+  for (size_t i = 0; i < body.size(); i += 2) {  // 1000, little-endian.
+    body[i] = static_cast<char>(0xe8);
+    body[i + 1] = 3;
+  }
+  // One slab alone first (the ingest's and the octree's buffers); the peak is measured from here.
+  PutSlab(id, 0, kDepth * kUploads, kDepth, body, 200);
+  server_.ResetPeakRss();  // Where allowed; else the peak since the start (at least as high).
+  const uint64_t baseline_kib = server_.RssKiB();
+
+  struct Outcome {
+    int status = 0;
+    std::string retry_after;
+    std::string error;
+  };
+  std::vector<Outcome> outcomes(kUploads);
+  std::latch start(kUploads);
+  std::vector<std::thread> threads;
+  for (int i = 0; i < kUploads; ++i) {
+    threads.emplace_back([&, i] {
+      net::testing::HttpClient client(server_.port());
+      // Half ask for "100 Continue" (curl does for large bodies); the others send at once.
+      const bool expect = i % 2 == 1;
+      const std::string target =
+          Auth("/api/datasets/" + id + "/slabs?z=" + std::to_string(kDepth * i) +
+               "&depth=" + std::to_string(kDepth) + "&channel=0");
+      const std::string head = "PUT " + target +
+                               " HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                               "Content-Type: application/octet-stream\r\nContent-Length: " +
+                               std::to_string(body.size()) + "\r\n" +
+                               (expect ? "Expect: 100-continue\r\n" : "") + "\r\n";
+      start.arrive_and_wait();
+      net::testing::HttpResult r;
+      if (client.WriteRaw(head)) {
+        r.error = "head not written";
+      } else if (expect) {
+        r = client.ReadResponse();
+        if (r.status == 100) {
+          client.WriteRaw(body);
+          r = client.ReadResponse();
+        }
+      } else {
+        client.WriteRaw(body);  // Fails when the server answered early and closed.
+        r = client.ReadResponse();
+      }
+      outcomes[i] = {r.status, HeaderOf(r, "Retry-After"), r.error};
+    });
+  }
+  for (auto& t : threads) t.join();
+  const uint64_t peak_kib = server_.PeakRssKiB();
+
+  int landed = 0, refused = 0;
+  for (int i = 0; i < kUploads; ++i) {
+    const Outcome& o = outcomes[i];
+    if (o.status == 200) {
+      ++landed;
+    } else {
+      EXPECT_EQ(o.status, 429) << "upload " << i << ": " << o.error;
+      EXPECT_FALSE(o.retry_after.empty()) << "upload " << i;
+      ++refused;
+    }
+  }
+  const uint64_t grown_mib = (peak_kib - std::min(peak_kib, baseline_kib)) >> 10;
+  std::printf(
+      "64 concurrent %d MiB uploads: %d landed, %d got 429; RSS %llu MiB before, peak "
+      "%llu MiB (+%llu MiB; bound 8 x %d MiB of bodies)\n",
+      kUploadMb, landed, refused, static_cast<unsigned long long>(baseline_kib >> 10),
+      static_cast<unsigned long long>(peak_kib >> 10), static_cast<unsigned long long>(grown_mib),
+      kUploadMb);
+  EXPECT_GE(landed, 1);
+  EXPECT_GE(refused, 1);
+  // The bodies (8 x 32 MiB) plus room for the inserts' own work (each of the two upload workers
+  // stages a slab: 2 x 32 MiB) and the I/O buffers. Admitted after reading, it was 1.1-1.2 GiB.
+  EXPECT_LE(grown_mib, 8u * kUploadMb + 2u * kUploadMb + 32u);
+  // Every admitted slab landed, and nothing else.
+  const json dataset = DatasetJson(id);
+  EXPECT_EQ(dataset["planes_received"], (landed + 1) * kDepth);
+  EXPECT_EQ(dataset["planes_inserted"], (landed + 1) * kDepth);
+}
+
+// Browsers send the Origin of the page that opens a WebSocket: the server's own pages (its public
+// URL, its listening address) and --allowed-origins may open one; other pages get 403 before the
+// upgrade; native clients send no Origin.
+class OriginTest : public testing::ServeFixture {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--public-url", "https://scope.lab.example/octoscope/", "--allowed-origins",
+            "https://viewer.lab.example, https://other.lab.example:8443"};
+  }
+};
+
+TEST_F(OriginTest, WebSocketsFromForeignPagesAreRefusedBeforeTheUpgrade) {
+  const std::string port = std::to_string(server_.port());
+  for (const std::string& origin :
+       {std::string(), std::string("https://scope.lab.example"),
+        std::string("https://viewer.lab.example"), std::string("https://other.lab.example:8443"),
+        "http://127.0.0.1:" + port, "http://localhost:" + port}) {
+    WsClient ws;
+    if (!origin.empty()) ws.SetHeader("Origin", origin);
+    ASSERT_TRUE(ConnectWs(ws)) << origin;
+    ASSERT_TRUE(
+        ws.Send(json{{"type", "hello"}, {"client", "hostile_test"}, {"protocol", 1}}.dump()));
+    EXPECT_TRUE(ReadEvent(ws, "welcome").has_value()) << origin;
+    ws.Close();
+  }
+  for (const std::string& origin :
+       {std::string("https://evil.example"), std::string("http://scope.lab.example"),
+        std::string("https://other.lab.example"), std::string("null"),
+        "http://127.0.0.1:" + std::to_string(server_.port() + 1)}) {
+    WsClient ws;
+    ws.SetHeader("Origin", origin);
+    EXPECT_NE(ws.Connect(server_.port(), Auth("/ws")), "") << origin;
+    EXPECT_EQ(ws.handshake_status(), 403) << origin;
+  }
+  EXPECT_TRUE(net::testing::WaitFor([&] { return Sessions() == 0; }));
+}
+
+// The connection caps, here from the --config file: a client over its cap gets 503 with
+// Retry-After at once, a WebSocket upgrade too; other clients are served.
+class ConnectionCapTest : public testing::ServeFixture {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    const fs::path config = dir_ / "caps.json";
+    std::ofstream(config) << R"({"max-connections": 100, "max-connections-per-address": 3})";
+    return {"--config", config.string()};
+  }
+};
+
+TEST_F(ConnectionCapTest, AClientOverItsCapGets503AndOthersAreServed) {
+  const uint16_t port = server_.port();
+  std::vector<std::unique_ptr<net::testing::HttpClient>> open;
+  for (int i = 0; i < 3; ++i) {
+    open.push_back(std::make_unique<net::testing::HttpClient>(port, "127.0.0.1"));
+    EXPECT_EQ(open.back()->Request(http::verb::get, "/api/health").status, 200);
+  }
+  net::testing::HttpClient over(port, "127.0.0.1");
+  const auto refused = over.Request(http::verb::get, Auth("/api/datasets"));
+  EXPECT_EQ(refused.status, 503) << refused.error;
+  EXPECT_FALSE(HeaderOf(refused, "Retry-After").empty());
+  WsClient ws;
+  EXPECT_NE(ws.Connect(port, Auth("/ws")), "");
+  EXPECT_EQ(ws.handshake_status(), 503);
+  net::testing::HttpClient other(port, "127.0.0.2");
+  EXPECT_EQ(other.Request(http::verb::get, Auth("/api/datasets")).status, 200);
+  EXPECT_EQ(open[0]->Request(http::verb::get, Auth("/api/datasets")).status, 200);
+  open.clear();
+  EXPECT_TRUE(net::testing::WaitFor(
+      [&] { return Fetch(port, http::verb::get, "/api/health").status == 200; }));
 }
 
 }  // namespace

@@ -102,19 +102,15 @@ class ServerProcess {
   }
 
   // Resident set size in KiB (VmRSS), 0 when unknown.
-  uint64_t RssKiB() const {
-    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
-    std::string key;
-    while (in >> key) {
-      if (key == "VmRSS:") {
-        uint64_t kib = 0;
-        in >> kib;
-        return kib;
-      }
-      std::string rest;
-      std::getline(in, rest);
-    }
-    return 0;
+  uint64_t RssKiB() const { return StatusKiB("VmRSS:"); }
+  // The peak resident set size in KiB (VmHWM) since the start or the last ResetPeakRss.
+  uint64_t PeakRssKiB() const { return StatusKiB("VmHWM:"); }
+  // Sets the peak (VmHWM) to the present RSS (/proc/PID/clear_refs); false when refused.
+  bool ResetPeakRss() const {
+    std::ofstream out("/proc/" + std::to_string(pid_) + "/clear_refs");
+    out << "5";
+    out.flush();
+    return out.good();
   }
 
   const std::string& url() const { return url_; }
@@ -125,6 +121,20 @@ class ServerProcess {
   pid_t pid() const { return pid_; }
 
  private:
+  uint64_t StatusKiB(const std::string& field) const {
+    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
+    std::string key;
+    while (in >> key) {
+      if (key == field) {
+        uint64_t kib = 0;
+        in >> kib;
+        return kib;
+      }
+      std::string rest;
+      std::getline(in, rest);
+    }
+    return 0;
+  }
   bool Fail(std::string what) {
     error_ = std::move(what);
     return false;

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <nlohmann/json.hpp>
 #include <regex>
 #include <string>
@@ -523,6 +524,44 @@ TEST_F(ShareTest, ViewLinksSurviveARestartAndOpenExactlyTheSavedState) {
   ASSERT_TRUE(ReadEvent(fork, "pong").has_value());
   EXPECT_EQ(json::parse(Fetch(server_.port(), http::verb::get, Auth("/api/views/" + view)).body),
             document);
+}
+
+TEST_F(ShareTest, ViewLinkIdsNeverReachTheLog) {
+  // Whoever has a view link's id opens the view: the access log names the route, not the id.
+  ASSERT_TRUE(StartServer());
+  const TestVolume v;
+  const std::string id = StreamTestVolume(v);
+  WsClient owner;
+  ConnectOwner(owner);
+  OpenOrthoMip(owner, id, v, 40, 30);
+  owner.Send(json{{"type", "view_save"}}.dump());
+  auto saved = ReadEvent(owner, "view_saved");
+  ASSERT_TRUE(saved.has_value());
+  const std::string view = (*saved)["id"];
+  owner.Close();
+  const uint16_t port = server_.port();
+  EXPECT_EQ(Fetch(port, http::verb::get, Auth("/api/views/" + view)).status, 200);
+  EXPECT_EQ(Fetch(port, http::verb::get, "/api/views/" + view + "?view=" + view).status, 200);
+  WsClient fork;
+  ASSERT_EQ(fork.Connect(port, "/ws?view=" + view), "");
+  fork.Send(Hello().dump());
+  EXPECT_TRUE(ReadEvent(fork, "welcome").has_value());
+  fork.Close();
+  EXPECT_EQ(Fetch(port, http::verb::get, Auth("/api/views/" + view + "/more")).status, 404);
+  // Last: DELETE removes the link.
+  for (const http::verb method : {http::verb::put, http::verb::post, http::verb::delete_}) {
+    EXPECT_NE(Fetch(port, method, Auth("/api/views/" + view)).status, 0);
+  }
+  ASSERT_EQ(server_.Stop(), 0);  // Every line written.
+  std::ifstream in(dir_ / "server.log");
+  const std::string log((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  EXPECT_EQ(log.find(view), std::string::npos) << log;
+  for (const char* method : {"GET", "DELETE", "PUT", "POST"}) {
+    EXPECT_NE(log.find(std::string(method) + " /api/views/<redacted> "), std::string::npos)
+        << method << "\n"
+        << log;
+  }
+  EXPECT_NE(log.find("GET /api/views/<redacted>/more 404"), std::string::npos) << log;
 }
 
 TEST_F(ShareTest, ACorruptViewFileIsAClearErrorNotACrash) {

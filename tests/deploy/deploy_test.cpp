@@ -1,10 +1,11 @@
 // The deploy/ files tested with the real tools: the shipped nginx sites pass `nginx -t`; Debian's
 // nginx, started on loopback with a certificate made here, in front of the real `octoscope
 // serve`, carries a whole WebSocket session over TLS (frames checked against the voxels) and a
-// slab upload larger than nginx's default body limit; the systemd unit passes `systemd-analyze
-// verify` and its sandbox scores low in `systemd-analyze security`; deploy/install.sh into a
-// DESTDIR produces the installed layout, keeps the config and token on upgrade, and the installed
-// binary serves the installed web client.
+// slab upload larger than nginx's default body limit, and lets the server check WebSocket pages'
+// origins and cap connections per client by what nginx forwards; the systemd unit passes
+// `systemd-analyze verify` and its sandbox scores low in `systemd-analyze security`;
+// deploy/install.sh into a DESTDIR produces the installed layout, keeps the config and token on
+// upgrade, and the installed binary serves the installed web client.
 #include <gtest/gtest.h>
 #include <sys/stat.h>
 
@@ -12,6 +13,7 @@
 #include <atomic>
 #include <cmath>
 #include <filesystem>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -278,6 +280,49 @@ TEST_P(NginxSiteTest, CarriesAWebSocketSessionAndASlabUploadOverTls) {
   EXPECT_NE(access.find("\"PUT " + Path("/api/datasets/" + id + "/slabs")), std::string::npos)
       << access;
   EXPECT_NE(access.find("\"GET " + Path("/ws?token=")), std::string::npos) << access;
+}
+
+TEST_P(NginxSiteTest, BrowsersAndClientsAreCheckedByWhatTheProxyForwards) {
+  // Behind the proxy (trusted): pages of the public URL may open WebSockets, others get 403; the
+  // per-address connection cap counts the clients nginx names, not nginx.
+  const std::string origin = "https://localhost:" + std::to_string(ports_.https);
+  ASSERT_TRUE(
+      server_.Start(OCTOSCOPE_BINARY,
+                    {"--port", "0", "--cache", (dir_ / "cache").string(), "--token", kToken,
+                     "--ram-mb", "256", "--device", "cpu", "--state-dir", (dir_ / "state").string(),
+                     "--public-url", origin + GetParam().prefix + "/", "--trusted-proxy",
+                     "127.0.0.1", "--max-connections-per-address", "2"},
+                    (dir_ / "server.log").string()))
+      << server_.error();
+  RenderAndCheck(server_.port());
+  ASSERT_EQ(proxy_.Start(nginx_, ports_.https), "");
+  const std::string target = Path("/ws?token=") + kToken;
+  auto hello = json{{"type", "hello"}, {"client", "deploy_test"}, {"protocol", 1}}.dump();
+  std::vector<std::unique_ptr<TlsWsClient>> open;
+  for (int i = 0; i < 2; ++i) {
+    open.push_back(std::make_unique<TlsWsClient>(Ca()));
+    open.back()->SetHeader("Origin", origin);
+    ASSERT_EQ(open.back()->Connect(ports_.https, target), "");
+    ASSERT_TRUE(open.back()->Send(hello));
+    ASSERT_TRUE(ReadEvent(*open.back(), "welcome").has_value());
+  }
+  // A third from the same client is over its cap (2); from another client it is not.
+  TlsWsClient third(Ca());
+  EXPECT_NE(third.Connect(ports_.https, target), "");
+  EXPECT_EQ(third.handshake_status(), 503);
+  TlsWsClient other(Ca());
+  other.SetHeader("Origin", origin);
+  EXPECT_EQ(other.Connect(ports_.https, target, "127.0.0.2"), "");
+  // A page of another site is refused before the upgrade.
+  TlsWsClient foreign(Ca());
+  foreign.SetHeader("Origin", "https://evil.example");
+  EXPECT_NE(foreign.Connect(ports_.https, target, "127.0.0.3"), "");
+  EXPECT_EQ(foreign.handshake_status(), 403);
+  for (auto& ws : open) ws->Close();
+  const std::string log = ReadFile(dir_ / "server.log");
+  EXPECT_NE(log.find("WS 127.0.0.3 refused: a page of Origin \"https://evil.example\""),
+            std::string::npos)
+      << log;
 }
 
 // An upstream that answers every request with the request's headers as a JSON object, to see

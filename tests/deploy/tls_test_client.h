@@ -124,6 +124,14 @@ class TlsWsClient {
   explicit TlsWsClient(const std::string& ca_file)
       : context_(MakeClientContext(ca_file)), ws_(ioc_, context_) {}
 
+  // Sends `name: value` with the upgrade request (Origin, as a browser does).
+  void SetHeader(std::string name, std::string value) {
+    ws_.set_option(websocket::stream_base::decorator(
+        [name = std::move(name), value = std::move(value)](websocket::request_type& request) {
+          request.set(name, value);
+        }));
+  }
+
   // TLS, then the upgrade of `target`; "" when open.
   std::string Connect(uint16_t port, const std::string& target,
                       const std::string& local_address = "127.0.0.1") {

@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <random>
 #include <string>
 #include <thread>
@@ -104,6 +105,18 @@ class HttpServerTest : public ::testing::Test {
   }
 
   std::string Token() const { return std::string("?token=") + kToken; }
+
+  // Kept-alive connections, one from each of `sources` (local addresses; "" the default), each
+  // served one request.
+  std::vector<std::unique_ptr<HttpClient>> OpenConnections(
+      const std::vector<std::string>& sources) {
+    std::vector<std::unique_ptr<HttpClient>> open;
+    for (const std::string& source : sources) {
+      open.push_back(std::make_unique<HttpClient>(port_, source));
+      EXPECT_EQ(open.back()->Request(http::verb::get, "/api/health").status, 200);
+    }
+    return open;
+  }
   std::vector<std::pair<std::string, std::string>> Bearer() const {
     return {{"Authorization", std::string("Bearer ") + kToken}};
   }
@@ -412,6 +425,116 @@ TEST_F(HttpServerTest, ForwardedHeadersAreBelievedOnlyFromTrustedProxies) {
   auto factory = [](const WsConnectInfo&) { return std::unique_ptr<WsHandler>(); };
   EXPECT_EQ(Server::Start(bad, api_, factory, logger_).status().code(),
             StatusCode::kInvalidArgument);
+}
+
+TEST_F(HttpServerTest, ViewLinkIdsInPathsAreRedactedInTheLog) {
+  Start();
+  const std::string id = "Vw0123456789abcdefghij";
+  for (const http::verb method : {http::verb::get, http::verb::delete_, http::verb::put}) {
+    EXPECT_EQ(Fetch(port_, method, "/api/views/" + id + Token()).status, 404);
+  }
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/views/" + id + "/part" + Token()).status, 404);
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/views/" + id).status, 401);
+  EXPECT_EQ(Fetch(port_, http::verb::get, "/api/echo/" + id + Token()).status, 404);
+  ASSERT_TRUE(WaitFor([&] { return logger_.Contains("GET /api/echo/" + id + " 404"); }));
+  EXPECT_TRUE(WaitFor([&] {
+    return logger_.Contains("GET /api/views/<redacted> 404") &&
+           logger_.Contains("DELETE /api/views/<redacted> 404") &&
+           logger_.Contains("PUT /api/views/<redacted> 404") &&
+           logger_.Contains("GET /api/views/<redacted>/part 404") &&
+           logger_.Contains("GET /api/views/<redacted> 401");
+  }));
+  for (const std::string& line : logger_.lines()) {
+    if (line.find("/api/echo/") == std::string::npos) {
+      EXPECT_EQ(line.find(id), std::string::npos) << line;
+    }
+  }
+}
+
+TEST_F(HttpServerTest, ConnectionsOverTheTotalCapGet503UntilOneCloses) {
+  ServerOptions options;
+  options.max_connections = 3;
+  Start(options);
+  auto open = OpenConnections({"127.0.0.1", "127.0.0.2", "127.0.0.3"});
+  for (const std::string source : {"127.0.0.1", "127.0.0.9"}) {
+    HttpClient over(port_, source);
+    HttpResult r = over.Request(http::verb::get, "/api/health");
+    EXPECT_EQ(r.status, 503) << r.error;
+    EXPECT_FALSE(Header(r, "Retry-After").empty());
+    EXPECT_FALSE(r.keep_alive);
+    EXPECT_TRUE(over.ServerClosed());
+  }
+  // The open ones are still served; once one closes, a new one is.
+  EXPECT_EQ(open[1]->Request(http::verb::get, "/api/health").status, 200);
+  open[0]->Close();
+  EXPECT_TRUE(WaitFor([&] { return Fetch(port_, http::verb::get, "/api/health").status == 200; }));
+  bool counted = false;
+  for (const auto& [code, n] : server_->responses_by_status()) counted |= code == 503 && n >= 2;
+  EXPECT_TRUE(counted);
+  EXPECT_TRUE(logger_.Contains("max-connections"));
+}
+
+TEST_F(HttpServerTest, ConnectionsPerAddressAreCappedAndOtherAddressesAreServed) {
+  ServerOptions options;
+  options.max_connections_per_address = 2;
+  Start(options);
+  auto open = OpenConnections({"127.0.0.1", "127.0.0.1"});
+  HttpClient over(port_, "127.0.0.1");
+  HttpResult r = over.Request(http::verb::get, "/api/health");
+  EXPECT_EQ(r.status, 503) << r.error;
+  EXPECT_FALSE(Header(r, "Retry-After").empty());
+  HttpClient other(port_, "127.0.0.2");
+  EXPECT_EQ(other.Request(http::verb::get, "/api/health").status, 200);
+  EXPECT_EQ(open[0]->Request(http::verb::get, "/api/health").status, 200);
+  open[1]->Close();
+  EXPECT_TRUE(WaitFor([&] {
+    HttpClient again(port_, "127.0.0.1");
+    return again.Request(http::verb::get, "/api/health").status == 200;
+  }));
+  EXPECT_TRUE(logger_.Contains("max-connections-per-address"));
+}
+
+TEST_F(HttpServerTest, BehindATrustedProxyTheForwardedClientIsCapped) {
+  ServerOptions options;
+  options.trusted_proxies = {"127.0.0.1"};
+  options.max_connections_per_address = 2;
+  Start(options);
+  const std::vector<std::pair<std::string, std::string>> client_a = {
+      {"X-Forwarded-For", "203.0.113.7"}, {"Authorization", std::string("Bearer ") + kToken}};
+  const std::vector<std::pair<std::string, std::string>> client_b = {
+      {"X-Forwarded-For", "198.51.100.9"}, {"Authorization", std::string("Bearer ") + kToken}};
+  // The proxy's own connections count in all only: more than the cap, kept alive.
+  auto proxy = OpenConnections({"", "", "", ""});
+  // Two requests of client A in flight take A's places...
+  std::vector<std::thread> slow;
+  std::atomic<int> slow_ok{0};
+  for (int i = 0; i < 2; ++i) {
+    slow.emplace_back([&] {
+      HttpClient c(port_);
+      slow_ok += c.Request(http::verb::get, "/api/slow", client_a).status == 200;
+    });
+  }
+  ASSERT_TRUE(WaitFor([&] { return api_->slow_started() == 2; }));
+  HttpResult over = proxy[0]->Request(http::verb::get, "/api/echo", client_a);
+  EXPECT_EQ(over.status, 503) << over.error;
+  EXPECT_FALSE(Header(over, "Retry-After").empty());
+  EXPECT_FALSE(over.keep_alive);
+  // ... not B's; and the proxy's idle keep-alive connections hold nobody's place.
+  EXPECT_EQ(proxy[1]->Request(http::verb::get, "/api/echo", client_b).status, 200);
+  EXPECT_EQ(proxy[2]->Request(http::verb::get, "/api/echo", client_b).status, 200);
+  auto served = [&](const std::vector<std::pair<std::string, std::string>>& client) {
+    return WaitFor([&] {
+      HttpClient c(port_);
+      return c.Request(http::verb::get, "/api/echo", client).status == 200;
+    });
+  };
+  EXPECT_TRUE(served(client_b));
+  EXPECT_EQ(proxy[3]->Request(http::verb::get, "/api/echo", client_b).status, 200);
+  // A's places come back when its requests are answered.
+  api_->Release();
+  for (auto& t : slow) t.join();
+  EXPECT_EQ(slow_ok, 2);
+  EXPECT_TRUE(served(client_a));
 }
 
 TEST_F(HttpServerTest, OversizedHeaderGets431AndOthersAreStillServed) {

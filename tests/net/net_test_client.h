@@ -97,12 +97,20 @@ beast::error_code RunOperation(asio::io_context& ioc, Start start) {
   return done ? result : beast::error_code(asio::error::timed_out);
 }
 
-// One HTTP/1.1 connection to the server, kept alive across requests.
+// One HTTP/1.1 connection to the server, kept alive across requests. `source`, when given, is
+// the local address it connects from (any of 127.0.0.0/8 reaches a server on 127.0.0.1).
 class HttpClient {
  public:
-  explicit HttpClient(uint16_t port) : stream_(ioc_) {
+  explicit HttpClient(uint16_t port, const std::string& source = "") : stream_(ioc_) {
     stream_.expires_after(kClientTimeout);
     const tcp::endpoint endpoint(asio::ip::make_address("127.0.0.1"), port);
+    if (!source.empty()) {
+      stream_.socket().open(tcp::v4(), connect_error_);
+      if (!connect_error_) {
+        stream_.socket().bind(tcp::endpoint(asio::ip::make_address(source), 0), connect_error_);
+      }
+      if (connect_error_) return;
+    }
     connect_error_ = RunOperation(
         ioc_, [&](auto handler) { stream_.async_connect(endpoint, std::move(handler)); });
   }
@@ -282,11 +290,12 @@ class WsClient {
   // `authorization`, when given, is sent as the Authorization header of the upgrade request.
   std::string Connect(uint16_t port, const std::string& target,
                       const std::string& authorization = "") {
-    if (!authorization.empty()) {
-      ws_.set_option(
-          websocket::stream_base::decorator([authorization](websocket::request_type& request) {
-            request.set(http::field::authorization, authorization);
-          }));
+    std::vector<std::pair<std::string, std::string>> headers = headers_;
+    if (!authorization.empty()) headers.emplace_back("Authorization", authorization);
+    if (!headers.empty()) {
+      ws_.set_option(websocket::stream_base::decorator([headers](websocket::request_type& request) {
+        for (const auto& [name, value] : headers) request.set(name, value);
+      }));
     }
     beast::get_lowest_layer(ws_).expires_after(kClientTimeout);
     const tcp::endpoint endpoint(asio::ip::make_address("127.0.0.1"), port);
@@ -300,6 +309,12 @@ class WsClient {
     });
     beast::get_lowest_layer(ws_).expires_never();
     return ec ? ec.message() : "";
+  }
+
+  // Sends `name: value` with the upgrade request of the next Connect (Origin, X-Forwarded-For, a
+  // Host of the test's choice).
+  void SetHeader(std::string name, std::string value) {
+    headers_.emplace_back(std::move(name), std::move(value));
   }
 
   int handshake_status() const { return static_cast<int>(handshake_response_.result_int()); }
@@ -369,6 +384,7 @@ class WsClient {
   beast::flat_buffer buffer_;
   websocket::response_type handshake_response_;
   beast::error_code last_error_;
+  std::vector<std::pair<std::string, std::string>> headers_;
 };
 
 // Resident set size of this process in bytes (/proc/self/statm).

@@ -128,6 +128,125 @@ TEST_F(WebSocketTest, TokenIsCheckedAtTheUpgrade) {
   EXPECT_EQ(elsewhere.handshake_status(), 404);
 }
 
+// Opens a WebSocket at Target("") with the given upgrade headers; "" or the handshake error.
+std::string ConnectWith(WsClient& client, uint16_t port,
+                        const std::vector<std::pair<std::string, std::string>>& headers) {
+  for (const auto& [name, value] : headers) client.SetHeader(name, value);
+  return client.Connect(port, std::string("/ws?token=") + kToken);
+}
+
+TEST_F(WebSocketTest, UpgradesFromForeignOriginsGet403BeforeAnyHandler) {
+  ServerOptions options;
+  options.allowed_origins = {"https://viewer.lab.example", "https://scope.lab.example/octoscope/"};
+  Start(options);
+  const std::string port = std::to_string(port_);
+  const std::string next_port = std::to_string(port_ + 1);
+  // The server's own address (loopback under any of its names), the allowed origins, and native
+  // clients, which send no Origin.
+  const std::vector<std::string> allowed = {
+      "http://127.0.0.1:" + port,      "http://localhost:" + port,   "http://[::1]:" + port,
+      "HTTP://LocalHost:" + port,      "https://viewer.lab.example", "https://scope.lab.example",
+      "https://viewer.lab.example:443"};
+  for (const std::string& origin : allowed) {
+    WsClient client;
+    EXPECT_EQ(ConnectWith(client, port_, {{"Origin", origin}}), "") << origin;
+  }
+  WsClient native;
+  EXPECT_EQ(ConnectWith(native, port_, {}), "");
+  EXPECT_TRUE(WaitFor([&] { return factory_calls_ == static_cast<int>(allowed.size()) + 1; }));
+  const std::vector<std::string> refused = {"https://evil.example",
+                                            "null",
+                                            "",
+                                            "http://127.0.0.1:" + next_port,
+                                            "https://127.0.0.1:" + port,
+                                            "http://127.0.0.2:" + port,
+                                            "http://viewer.lab.example",
+                                            "https://viewer.lab.example:8443",
+                                            "https://viewer.lab.example.evil.example",
+                                            "https://viewer.lab.example https://evil.example",
+                                            "https://evil.example/https://viewer.lab.example"};
+  for (const std::string& origin : refused) {
+    WsClient client;
+    EXPECT_NE(ConnectWith(client, port_, {{"Origin", origin}}), "") << origin;
+    EXPECT_EQ(client.handshake_status(), 403) << origin;
+  }
+  EXPECT_EQ(factory_calls_, static_cast<int>(allowed.size()) + 1);  // None for the refused.
+  EXPECT_TRUE(logger_.Contains("https://evil.example"));
+}
+
+TEST_F(WebSocketTest, BehindATrustedProxyTheForwardedOriginIsTheServers) {
+  ServerOptions options;
+  options.trusted_proxies = {"127.0.0.1"};
+  Start(options);
+  const std::vector<std::pair<std::string, std::string>> forwarded = {
+      {"X-Forwarded-For", "203.0.113.7"},
+      {"X-Forwarded-Proto", "https"},
+      {"X-Forwarded-Host", "scope.lab.example"}};
+  auto with_origin = [&](const std::string& origin) {
+    auto headers = forwarded;
+    headers.emplace_back("Origin", origin);
+    return headers;
+  };
+  {
+    WsClient client;
+    EXPECT_EQ(ConnectWith(client, port_, with_origin("https://scope.lab.example")), "");
+  }
+  for (const std::string origin :
+       {"https://evil.example", "http://scope.lab.example", "https://scope.lab.example:8443"}) {
+    WsClient client;
+    EXPECT_NE(ConnectWith(client, port_, with_origin(origin)), "") << origin;
+    EXPECT_EQ(client.handshake_status(), 403) << origin;
+  }
+  {
+    // Without X-Forwarded-Host, the Host the proxy passed on (with its port).
+    WsClient client;
+    EXPECT_EQ(ConnectWith(client, port_,
+                          {{"X-Forwarded-Proto", "https"},
+                           {"Host", "scope.lab.example:8443"},
+                           {"Origin", "https://scope.lab.example:8443"}}),
+              "");
+  }
+  server_.reset();
+  // The same headers from a peer that is not a trusted proxy are the client's own claim.
+  Start();
+  WsClient client;
+  EXPECT_NE(ConnectWith(client, port_, with_origin("https://scope.lab.example")), "");
+  EXPECT_EQ(client.handshake_status(), 403);
+}
+
+TEST_F(WebSocketTest, UpgradesOverTheForwardedClientsCapGet503BeforeTheUpgrade) {
+  ServerOptions options;
+  options.trusted_proxies = {"127.0.0.1"};
+  options.max_connections_per_address = 2;
+  Start(options);
+  const std::vector<std::pair<std::string, std::string>> client_a = {
+      {"X-Forwarded-For", "203.0.113.7"}};
+  const std::vector<std::pair<std::string, std::string>> client_b = {
+      {"X-Forwarded-For", "198.51.100.9"}};
+  auto first = std::make_unique<WsClient>();
+  ASSERT_EQ(ConnectWith(*first, port_, client_a), "");
+  WsClient second;
+  ASSERT_EQ(ConnectWith(second, port_, client_a), "");
+  WsClient third;
+  EXPECT_NE(ConnectWith(third, port_, client_a), "");
+  EXPECT_EQ(third.handshake_status(), 503);
+  EXPECT_EQ(factory_calls_, 2);
+  // Another client through the same proxy, and the proxy's own connections, are served.
+  WsClient other;
+  EXPECT_EQ(ConnectWith(other, port_, client_b), "");
+  WsClient proxy_itself;
+  EXPECT_EQ(ConnectWith(proxy_itself, port_, {}), "");
+  ASSERT_TRUE(second.Send("still here"));
+  EXPECT_EQ(second.Read().data, "still here");
+  // Once one of the client's WebSockets closes, it may open another.
+  first->Close();
+  first.reset();
+  EXPECT_TRUE(WaitFor([&] {
+    WsClient again;
+    return ConnectWith(again, port_, client_a).empty();
+  }));
+}
+
 TEST_F(WebSocketTest, OversizedUpgradeHeaderIsRefusedBeforeTheToken) {
   Start();
   WsClient client;

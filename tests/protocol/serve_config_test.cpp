@@ -101,6 +101,23 @@ TEST(ServeConfigTest, ErrorsNameTheKey) {
   EXPECT_NE(ErrorOf(R"({"users":[],"users-file":"u.json"})").find("not both"), std::string::npos);
 }
 
+TEST(ServeConfigTest, ConnectionCapsAndAllowedOrigins) {
+  auto c = ParseServeConfig(R"({"max-connections": 2048, "max-connections-per-address": 16,
+                                "allowed-origins": ["https://viewer.lab.example"]})",
+                            "cfg.json");
+  ASSERT_TRUE(c.ok()) << c.status().ToString();
+  EXPECT_EQ(c->max_connections, 2048);
+  EXPECT_EQ(c->max_connections_per_address, 16);
+  EXPECT_EQ(c->allowed_origins, (std::vector<std::string>{"https://viewer.lab.example"}));
+  EXPECT_NE(ErrorOf(R"({"max-connections":0})").find("max-connections"), std::string::npos);
+  EXPECT_NE(
+      ErrorOf(R"({"max-connections-per-address":1000001})").find("max-connections-per-address"),
+      std::string::npos);
+  EXPECT_NE(ErrorOf(R"({"allowed-origins":"https://a.example"})").find("allowed-origins"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf(R"({"allowed-origin":[]})").find("unknown key"), std::string::npos);
+}
+
 TEST(ServeConfigTest, Rfc3339UtcTimes) {
   EXPECT_EQ(*ParseRfc3339Utc("1970-01-01T00:00:00Z", "t"), 0);
   EXPECT_EQ(*ParseRfc3339Utc("2000-02-29T12:34:56Z", "t"), 951827696);  // date -u -d ... +%s
