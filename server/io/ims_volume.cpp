@@ -362,6 +362,15 @@ Status OpenChannel(hid_t file, const std::string& path, const std::string& name,
   if (!LinkExists(file, path, access)) return CorruptError(where + ": dataset missing");
   OCTO_ASSIGN_OR_RETURN(hid_t ds, OCTO_H5(H5Dopen2(file, path.c_str(), access.datasets())));
   ch.dataset = Hdf5Id(ds);
+  OCTO_ASSIGN_OR_RETURN(hid_t pl, OCTO_H5(H5Dget_create_plist(ds)));
+  Hdf5Id dcpl(pl);
+  const H5D_layout_t layout = H5Pget_layout(dcpl.get());
+  // Data kept in other files (external storage, a virtual dataset's sources), refused before
+  // anything (such as its extent) could make HDF5 open them.
+  if (access.confined() && (layout == H5D_VIRTUAL || H5Pget_external_count(dcpl.get()) != 0)) {
+    H5Eclear2(H5E_DEFAULT);
+    return OutsideFolderError();
+  }
   OCTO_ASSIGN_OR_RETURN(hid_t sp, OCTO_H5(H5Dget_space(ds)));
   Hdf5Id space(sp);
   const int rank = H5Sget_simple_extent_ndims(space.get());
@@ -375,15 +384,7 @@ Status OpenChannel(hid_t file, const std::string& path, const std::string& name,
   Hdf5Id type(ty);
   bool be = false;
   OCTO_ASSIGN_OR_RETURN(volume::DataType t, SampleTypeOf(type.get(), where, be));
-  OCTO_ASSIGN_OR_RETURN(hid_t pl, OCTO_H5(H5Dget_create_plist(ds)));
-  Hdf5Id dcpl(pl);
   std::array<hsize_t, 3> ch_chunk;
-  const H5D_layout_t layout = H5Pget_layout(dcpl.get());
-  // Data kept in other files (external storage, a virtual dataset's sources).
-  if (access.confined() && (layout == H5D_VIRTUAL || H5Pget_external_count(dcpl.get()) != 0)) {
-    H5Eclear2(H5E_DEFAULT);
-    return OutsideFolderError();
-  }
   if (layout == H5D_CHUNKED) {
     if (H5Pget_chunk(dcpl.get(), 3, ch_chunk.data()) != 3) {
       H5Eclear2(H5E_DEFAULT);
