@@ -168,15 +168,7 @@ Result<FileGate> FileGate::ForDataset(const fs::path& path) {
   return gate;
 }
 
-Status FileGate::WalkTo(const fs::path& path, Walk& walk) const {
-  std::error_code ec;
-  const fs::path absolute = path.is_absolute() ? path : fs::absolute(path, ec);
-  if (ec) return IoError(path.string() + ": cannot resolve the path: " + ec.message());
-  std::optional<std::deque<std::string>> todo = After(absolute, spelled_);
-  if (!todo) todo = After(absolute, root_);
-  if (!todo) return OutsideFolderError();
-
-  // The folder itself, from "/", never through a link.
+Result<int> FileGate::OpenFolder(const fs::path& path) const {
   int dir = ::open("/", O_PATH | O_DIRECTORY | O_CLOEXEC);
   if (dir < 0) return IoError("/: cannot open: " + Errno(errno));
   for (const fs::path& part : root_.relative_path()) {
@@ -190,12 +182,42 @@ Status FileGate::WalkTo(const fs::path& path, Walk& walk) const {
         ::close(fd);
         return OutsideFolderError();  // Now a link (or a file): it leads elsewhere.
       }
-      if (err != ENOENT) return IoError(path.string() + ": cannot open: " + Errno(err));
-      return walk.Missing(*todo);  // The folder is gone.
+      if (err == ENOENT) return NotFoundError(path.string() + ": no such file or folder");
+      return IoError(path.string() + ": cannot open: " + Errno(err));
     }
     dir = fd;
   }
-  walk.Enter(dir, "");
+  return dir;
+}
+
+Result<FileGate> FileGate::Pinned() const {
+  if (!confined_) return *this;
+  OCTO_ASSIGN_OR_RETURN(const int fd, OpenFolder(root_));
+  FileGate pinned = *this;
+  pinned.pinned_ = std::make_shared<const ScopedFd>(fd);
+  return pinned;
+}
+
+Status FileGate::WalkTo(const fs::path& path, Walk& walk) const {
+  std::error_code ec;
+  const fs::path absolute = path.is_absolute() ? path : fs::absolute(path, ec);
+  if (ec) return IoError(path.string() + ": cannot resolve the path: " + ec.message());
+  std::optional<std::deque<std::string>> todo = After(absolute, spelled_);
+  if (!todo) todo = After(absolute, root_);
+  if (!todo) return OutsideFolderError();
+
+  if (pinned_) {
+    const int fd = ::fcntl(pinned_->get(), F_DUPFD_CLOEXEC, 0);
+    if (fd < 0) return IoError(path.string() + ": cannot open: " + Errno(errno));
+    walk.Enter(fd, "");
+  } else {
+    Result<int> folder = OpenFolder(path);
+    if (!folder.ok() && folder.status().code() == StatusCode::kNotFound) {
+      return walk.Missing(*todo);  // The folder is gone.
+    }
+    if (!folder.ok()) return folder.status();
+    walk.Enter(*folder, "");
+  }
 
   int links = 0;
   while (!todo->empty()) {

@@ -23,9 +23,11 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <string_view>
 
+#include "util/file_reading.h"
 #include "util/result.h"
 #include "util/status.h"
 
@@ -49,6 +51,11 @@ class FileGate {
 
   bool confined() const { return confined_; }
 
+  // The same gate holding its folder open (once resolved from "/" as every walk does), so that
+  // each path is resolved from there: for readers that open many files (Zarr chunks). The folder
+  // stays the one opened even if it is moved. Unconfined: a copy.
+  Result<FileGate> Pinned() const;
+
   // Where `path` leads: `path` itself when unconfined; confined, the resolved path inside the
   // folder (no symbolic links; it may name nothing), or a refusal.
   Result<std::filesystem::path> Resolve(const std::filesystem::path& path) const;
@@ -65,6 +72,8 @@ class FileGate {
  private:
   class Walk;
   FileGate(std::filesystem::path spelled, std::filesystem::path root);
+  // Opens the folder from "/" without following links; NotFound when it is gone.
+  Result<int> OpenFolder(const std::filesystem::path& path) const;
   // Resolves `path` beneath the folder into `walk`. REQUIRES: confined().
   Status WalkTo(const std::filesystem::path& path, Walk& walk) const;
 
@@ -72,6 +81,7 @@ class FileGate {
   // The folder as readers spell it (absolute, lexically normal), and resolved (canonical).
   std::filesystem::path spelled_;
   std::filesystem::path root_;
+  std::shared_ptr<const ScopedFd> pinned_;  // The folder, held open (Pinned()).
 };
 
 // The refusal: kPermissionDenied, kOutsideFolderMessage.

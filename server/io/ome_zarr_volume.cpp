@@ -465,13 +465,15 @@ Result<std::unique_ptr<VolumeSource>> OpenOmeZarr(const fs::path& path,
   layout.z_dim = map.z;
   layout.channel_dim = map.c;
   layout.time_dim = map.t;
+  // Chunk files are many: resolved from the store's folder held open.
+  OCTO_ASSIGN_OR_RETURN(FileGate chunks, options.file_gate.Pinned());
   ChunkedVolumeOptions chunked;
   chunked.name = name;
   chunked.fill_value = meta.fill_value.value_or(0);
   chunked.cache_bytes = options.chunk_cache_bytes;
   chunked.threads = options.decode_threads;
   return MakeChunkedVolume(std::move(info), std::move(layout),
-                           MakeZarrChunkReader(sel.array_dir, std::move(meta), options.file_gate),
+                           MakeZarrChunkReader(sel.array_dir, std::move(meta), std::move(chunks)),
                            chunked);
 }
 

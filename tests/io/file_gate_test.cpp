@@ -153,6 +153,24 @@ TEST_F(FileGateTest, AFolderReplacedByALinkLaterIsRefused) {
   EXPECT_EQ(*gate->Type(own_ / "sub" / "x.txt"), fs::file_type::not_found);
 }
 
+TEST_F(FileGateTest, APinnedGateResolvesFromTheFolderItHolds) {
+  std::ofstream(own_ / "sub" / "x.txt") << "x";
+  Result<FileGate> gate = FileGate::Within(own_ / "sub");
+  ASSERT_TRUE(gate.ok());
+  Result<FileGate> pinned = gate->Pinned();
+  ASSERT_TRUE(pinned.ok()) << pinned.status().ToString();
+  EXPECT_EQ(Read(*pinned, own_ / "sub" / "x.txt"), "x");
+  ExpectRefused(*pinned, own_ / "sub" / ".." / "a.txt");
+  // Moved and replaced by a link out: the pinned gate still reads the folder it holds.
+  fs::rename(own_ / "sub", own_ / "moved");
+  fs::create_directory_symlink("../outside", own_ / "sub");
+  EXPECT_EQ(Read(*pinned, own_ / "sub" / "x.txt"), "x");
+  EXPECT_EQ(*pinned->Type(own_ / "sub" / "secret.txt"), fs::file_type::not_found);
+  ExpectRefused(*gate, own_ / "sub" / "x.txt");
+  EXPECT_EQ(gate->Pinned().status().ToString(), kRefusal);
+  EXPECT_FALSE(FileGate().Pinned()->confined());
+}
+
 TEST_F(FileGateTest, AFifoIsNotARegularFileAndNeverBlocks) {
   ASSERT_EQ(::mkfifo((own_ / "fifo").c_str(), 0600), 0);
   EXPECT_EQ(gate_.OpenForReading(own_ / "fifo").status().code(), StatusCode::kUnsupported);
