@@ -86,7 +86,6 @@ class FileGate::Walk {
   Walk() = default;
   ~Walk() {
     for (int fd : folders_) ::close(fd);
-    if (leaf_fd >= 0) ::close(leaf_fd);
   }
   Walk(const Walk&) = delete;
   Walk& operator=(const Walk&) = delete;
@@ -134,7 +133,6 @@ class FileGate::Walk {
 
   bool found = false;
   std::string leaf;  // Found: the entry of folder() the path names; "" for folder() itself.
-  int leaf_fd = -1;  // Found with a leaf: the entry itself (O_PATH).
   mode_t mode = 0;   // Found: what the path names.
   // Not found: the components from the first that does not exist.
   std::vector<std::string> missing;
@@ -244,6 +242,10 @@ Status FileGate::WalkTo(const fs::path& path, Walk& walk) const {
       ::close(fd);
       return IoError(path.string() + ": cannot stat: " + Errno(err));
     }
+    if (S_ISDIR(st.st_mode)) {
+      walk.Enter(fd, std::move(name));
+      continue;
+    }
     if (S_ISLNK(st.st_mode)) {
       char target[PATH_MAX + 1];
       const ssize_t n = ::readlinkat(fd, "", target, sizeof target);
@@ -267,18 +269,13 @@ Status FileGate::WalkTo(const fs::path& path, Walk& walk) const {
       todo->insert(todo->begin(), parts.begin(), parts.end());
       continue;
     }
-    if (S_ISDIR(st.st_mode)) {
-      walk.Enter(fd, std::move(name));
-      continue;
-    }
+    ::close(fd);
     if (!todo->empty()) {  // "file/more": names nothing.
-      ::close(fd);
       todo->push_front(std::move(name));
       return walk.Missing(*todo);
     }
     walk.found = true;
     walk.leaf = std::move(name);
-    walk.leaf_fd = fd;
     walk.mode = st.st_mode;
     return Status::Ok();
   }
