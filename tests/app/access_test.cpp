@@ -312,6 +312,9 @@ TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
     EXPECT_EQ(messages[exists], messages[absent]);
   }
 
+  // A refused folder is still searched: its own slices are listed.
+  EXPECT_EQ(listed.count("z0.tif"), 1u) << r.body;
+
   // The reference inside her folder opens; bob's file itself is still his (and the admins').
   WsClient inside;
   auto opened = Open(inside, kAlice, listed.at("inside.companion.ome")["id"]);
