@@ -23,7 +23,7 @@ void AddVolumeFlags(Flags& flags) {
 
 io::OpenOptions DefaultOpenOptions() {
   io::OpenOptions options;
-  options.load_raw_sidecar = protocol::LoadRawSidecar;
+  options.parse_raw_sidecar = protocol::ParseRawSidecarFile;
   options.zarr_json = protocol::MakeZarrJsonParsers();
   return options;
 }

@@ -133,7 +133,13 @@ Dataset::~Dataset() {
 std::shared_ptr<Dataset> Dataset::ForSource(const SourceSpec& spec) {
   volume::VolumeInfo info;
   std::string header_error;
-  auto source = io::OpenVolume(spec.path, spec.open);
+  // The dataset reads nothing outside its own folder, which every folder grant admitting it
+  // contains (docs/server.md, "Users and access").
+  io::OpenOptions open = spec.open;
+  Result<io::FileGate> gate = io::FileGate::ForDataset(spec.path);
+  if (gate.ok()) open.file_gate = *gate;
+  auto source = gate.ok() ? io::OpenVolume(spec.path, open)
+                          : Result<std::unique_ptr<io::VolumeSource>>(gate.status());
   if (source.ok()) {
     info = (*source)->info();
   } else {
@@ -151,13 +157,14 @@ std::shared_ptr<Dataset> Dataset::ForSource(const SourceSpec& spec) {
   identity.cache_dir = spec.cache_root / spec.id;
   std::shared_ptr<Dataset> d(new Dataset(Kind::kFile, std::move(identity), std::move(info)));
   d->source_path_ = spec.path;
-  d->open_options_ = spec.open;
+  d->open_options_ = std::move(open);
   d->open_options_.on_warning = nullptr;  // Warnings are in info().
   d->threshold_ = spec.threshold;
   d->brick_request_ = spec.brick_size;
   d->threads_ = spec.threads;
   d->ram_bytes_ = spec.ram_bytes;
   d->header_error_ = header_error;
+  d->refers_outside_ = !source.ok() && io::IsOutsideFolderError(source.status());
   if (!header_error.empty()) {
     d->state_ = DatasetState::kError;
     d->error_ = header_error;
@@ -384,8 +391,10 @@ void Dataset::RunOpen(std::stop_token stop) {
 }
 
 Status Dataset::OpenOrBuild(std::stop_token stop) {
-  OCTO_ASSIGN_OR_RETURN(octree::SourceIdentity identity,
-                        octree::ComputeSourceIdentity(source_path_));
+  Result<octree::SourceIdentity> computed =
+      octree::ComputeSourceIdentity(source_path_, open_options_.file_gate);
+  if (!computed.ok()) return io::OutsideFolderErrorOf(computed.status(), source_path_);
+  const octree::SourceIdentity identity = *computed;
   OCTO_ASSIGN_OR_RETURN(std::unique_ptr<io::VolumeSource> source,
                         io::OpenVolume(source_path_, open_options_));
   const volume::VolumeInfo& info = source->info();

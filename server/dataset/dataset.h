@@ -146,6 +146,9 @@ class Dataset {
   std::array<double, 3> spacing_um() const;
   const std::filesystem::path& cache_dir() const { return cache_dir_; }
   const std::filesystem::path& source_path() const { return source_path_; }
+  // The scan was refused at creation for referring to a file outside its own folder (io::FileGate;
+  // the error says only that).
+  bool refers_outside() const { return refers_outside_; }
   DatasetStatus status() const;
 
   // Makes the octree available: idempotent and non-blocking (the work runs on the dataset's
@@ -240,7 +243,8 @@ class Dataset {
   double threshold_ = 0.0;
   octree::Vec3 brick_request_{0, 0, 0};
   int threads_ = 0;
-  std::string header_error_;  // Set when the file was unreadable at creation.
+  std::string header_error_;     // Set when the file was unreadable at creation.
+  bool refers_outside_ = false;  // header_error_ is the gate's refusal.
   // Streams.
   std::chrono::milliseconds flush_latency_{100};
 

@@ -118,13 +118,19 @@ bool DatasetRegistry::TryAdd(const fs::path& root, size_t root_index, const fs::
   std::shared_ptr<Dataset> dataset = Dataset::ForSource(spec);
   std::error_code ec;
   // Folders no reader accepts are containers (searched further); files with a scan's name that
-  // cannot be read are listed with their error, so that users see why.
-  if (dataset->status().state == DatasetState::kError && fs::is_directory(path, ec)) return false;
+  // cannot be read are listed with their error, so that users see why. A folder refused for
+  // referring outside itself (a slice that links elsewhere) is both: listed with the refusal and
+  // searched further.
+  const bool folder = fs::is_directory(path, ec);
+  if (dataset->status().state == DatasetState::kError && folder && !dataset->refers_outside()) {
+    return false;
+  }
+  const bool search_further = folder && dataset->refers_outside();
   std::lock_guard<std::mutex> lock(mu_);
-  if (by_id_.count(spec.id) != 0) return true;
+  if (by_id_.count(spec.id) != 0) return !search_further;
   by_id_.emplace(spec.id, dataset);
   ordered_.push_back(std::move(dataset));
-  return true;
+  return !search_further;
 }
 
 std::vector<std::shared_ptr<Dataset>> DatasetRegistry::List() const {

@@ -78,7 +78,8 @@ class DatasetRegistry {
   void Scan(const std::filesystem::path& root, size_t root_index);
   void ScanFolder(const std::filesystem::path& root, size_t root_index,
                   const std::filesystem::path& folder, int depth);
-  // True when a reader accepted `path` (it is then listed).
+  // True when a reader accepted `path` (it is then listed). A folder refused for referring outside
+  // itself is listed too, but is searched further (false).
   bool TryAdd(const std::filesystem::path& root, size_t root_index,
               const std::filesystem::path& path);
 

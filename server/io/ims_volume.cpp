@@ -16,11 +16,13 @@
 
 #include "io/chunk_codecs.h"
 #include "io/chunked_volume.h"
+#include "io/file_gate.h"
 #include "io/hdf5_call.h"
 #include "io/ome_xml.h"
 #include "io/spacing.h"
 #include "util/byte_swap.h"
 #include "util/checked_math.h"
+#include "util/file_reading.h"
 #include "util/strings.h"
 #include "util/uninitialized_bytes.h"
 #include "volume/volume_info.h"
@@ -40,8 +42,48 @@ constexpr H5Z_filter_t kLz4Filter = 32004;  // The HDF5 LZ4 plugin's registered 
 
 std::string Num(int64_t v) { return std::to_string(v); }
 
-bool LinkExists(hid_t loc, const std::string& path) {
-  const htri_t r = H5Lexists(loc, path.c_str(), H5P_DEFAULT);
+// How the reader follows paths inside the file. Confined (a dataset's FileGate), a path through an
+// external link — which would open another file — fails and refused() says so; else HDF5's
+// defaults. Datasets stored in other files (external storage, virtual datasets) are refused when
+// confined too (OpenChannel).
+class LinkAccess {
+ public:
+  static Result<LinkAccess> Make(bool confined) {
+    LinkAccess access;
+    if (!confined) return access;
+    const std::pair<hid_t, Hdf5Id*> lists[] = {{H5P_LINK_ACCESS, &access.links_},
+                                               {H5P_GROUP_ACCESS, &access.groups_},
+                                               {H5P_DATASET_ACCESS, &access.datasets_}};
+    for (const auto& [kind, list] : lists) {
+      OCTO_ASSIGN_OR_RETURN(hid_t id, OCTO_H5(H5Pcreate(kind)));
+      *list = Hdf5Id(id);
+      OCTO_RETURN_IF_ERROR(
+          OCTO_H5(H5Pset_elink_cb(id, &RefuseExternal, access.refused_.get())).status());
+    }
+    return access;
+  }
+
+  bool confined() const { return links_.valid(); }
+  // Property lists for H5Lexists / H5A*_by_name, H5Gopen2, H5Dopen2.
+  hid_t links() const { return confined() ? links_.get() : H5P_DEFAULT; }
+  hid_t groups() const { return confined() ? groups_.get() : H5P_DEFAULT; }
+  hid_t datasets() const { return confined() ? datasets_.get() : H5P_DEFAULT; }
+  // An external link was met (and not followed).
+  bool refused() const { return *refused_; }
+
+ private:
+  static herr_t RefuseExternal(const char*, const char*, const char*, const char*, unsigned*, hid_t,
+                               void* refused) {
+    *static_cast<bool*>(refused) = true;
+    return -1;
+  }
+
+  Hdf5Id links_, groups_, datasets_;
+  std::unique_ptr<bool> refused_ = std::make_unique<bool>(false);  // The callbacks' target.
+};
+
+bool LinkExists(hid_t loc, const std::string& path, const LinkAccess& access) {
+  const htri_t r = H5Lexists(loc, path.c_str(), access.links());
   if (r < 0) H5Eclear2(H5E_DEFAULT);
   return r > 0;
 }
@@ -55,11 +97,12 @@ std::optional<std::string> NoAttribute() {
 // The text of attribute `attr` of the object at `object` (relative to `loc`): char arrays are
 // joined (Imaris's "array of single characters"), fixed and variable-length strings read as such,
 // a single number formatted. nullopt when absent, empty-typed, oversized or of another kind.
-std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, const char* attr) {
-  if (!LinkExists(loc, object) && object != ".") return std::nullopt;
-  const htri_t exists = H5Aexists_by_name(loc, object.c_str(), attr, H5P_DEFAULT);
+std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, const char* attr,
+                                         const LinkAccess& access) {
+  if (!LinkExists(loc, object, access) && object != ".") return std::nullopt;
+  const htri_t exists = H5Aexists_by_name(loc, object.c_str(), attr, access.links());
   if (exists <= 0) return NoAttribute();
-  Hdf5Id a(H5Aopen_by_name(loc, object.c_str(), attr, H5P_DEFAULT, H5P_DEFAULT));
+  Hdf5Id a(H5Aopen_by_name(loc, object.c_str(), attr, H5P_DEFAULT, access.links()));
   if (!a.valid()) return NoAttribute();
   Hdf5Id type(H5Aget_type(a.get()));
   Hdf5Id space(H5Aget_space(a.get()));
@@ -107,8 +150,9 @@ std::optional<std::string> TextAttribute(hid_t loc, const std::string& object, c
   return std::nullopt;
 }
 
-std::optional<double> NumberAttribute(hid_t loc, const std::string& object, const char* attr) {
-  std::optional<std::string> text = TextAttribute(loc, object, attr);
+std::optional<double> NumberAttribute(hid_t loc, const std::string& object, const char* attr,
+                                      const LinkAccess& access) {
+  std::optional<std::string> text = TextAttribute(loc, object, attr, access);
   if (!text) return std::nullopt;
   std::optional<double> v = ParseDouble(TrimWhitespace(*text));
   if (v && !std::isfinite(*v)) return std::nullopt;
@@ -130,8 +174,8 @@ std::vector<double> NumberList(std::string_view text) {
 
 // Counts "<prefix>0", "<prefix>1", … under `group` (at most the group's link count).
 int64_t CountNumbered(hid_t file, const std::string& group, const std::string& prefix,
-                      int64_t limit) {
-  Hdf5Id g(H5Gopen2(file, group.c_str(), H5P_DEFAULT));
+                      int64_t limit, const LinkAccess& access) {
+  Hdf5Id g(H5Gopen2(file, group.c_str(), access.groups()));
   H5G_info_t info;
   if (!g.valid() || H5Gget_info(g.get(), &info) < 0) {
     H5Eclear2(H5E_DEFAULT);  // A missing group holds nothing.
@@ -139,7 +183,7 @@ int64_t CountNumbered(hid_t file, const std::string& group, const std::string& p
   }
   const int64_t links = static_cast<int64_t>(std::min<hsize_t>(info.nlinks, limit + 1));
   int64_t n = 0;
-  while (n < links && LinkExists(g.get(), prefix + std::to_string(n))) ++n;
+  while (n < links && LinkExists(g.get(), prefix + std::to_string(n), access)) ++n;
   return n;
 }
 
@@ -313,11 +357,20 @@ class ImarisChunkReader final : public ChunkReader {
 // the others against them.
 Status OpenChannel(hid_t file, const std::string& path, const std::string& name, ChannelData& ch,
                    volume::DataType& dtype, bool& big_endian, std::array<hsize_t, 3>& chunk,
-                   bool first) {
+                   bool first, const LinkAccess& access) {
   const std::string where = name + ": " + path;
-  if (!LinkExists(file, path)) return CorruptError(where + ": dataset missing");
-  OCTO_ASSIGN_OR_RETURN(hid_t ds, OCTO_H5(H5Dopen2(file, path.c_str(), H5P_DEFAULT)));
+  if (!LinkExists(file, path, access)) return CorruptError(where + ": dataset missing");
+  OCTO_ASSIGN_OR_RETURN(hid_t ds, OCTO_H5(H5Dopen2(file, path.c_str(), access.datasets())));
   ch.dataset = Hdf5Id(ds);
+  OCTO_ASSIGN_OR_RETURN(hid_t pl, OCTO_H5(H5Dget_create_plist(ds)));
+  Hdf5Id dcpl(pl);
+  const H5D_layout_t layout = H5Pget_layout(dcpl.get());
+  // Data kept in other files (external storage, a virtual dataset's sources), refused before
+  // anything (such as its extent) could make HDF5 open them.
+  if (access.confined() && (layout == H5D_VIRTUAL || H5Pget_external_count(dcpl.get()) != 0)) {
+    H5Eclear2(H5E_DEFAULT);
+    return OutsideFolderError();
+  }
   OCTO_ASSIGN_OR_RETURN(hid_t sp, OCTO_H5(H5Dget_space(ds)));
   Hdf5Id space(sp);
   const int rank = H5Sget_simple_extent_ndims(space.get());
@@ -331,10 +384,7 @@ Status OpenChannel(hid_t file, const std::string& path, const std::string& name,
   Hdf5Id type(ty);
   bool be = false;
   OCTO_ASSIGN_OR_RETURN(volume::DataType t, SampleTypeOf(type.get(), where, be));
-  OCTO_ASSIGN_OR_RETURN(hid_t pl, OCTO_H5(H5Dget_create_plist(ds)));
-  Hdf5Id dcpl(pl);
   std::array<hsize_t, 3> ch_chunk;
-  const H5D_layout_t layout = H5Pget_layout(dcpl.get());
   if (layout == H5D_CHUNKED) {
     if (H5Pget_chunk(dcpl.get(), 3, ch_chunk.data()) != 3) {
       H5Eclear2(H5E_DEFAULT);
@@ -390,43 +440,29 @@ std::optional<volume::Rgba> ImarisColor(std::string_view text) {
   return c;
 }
 
-}  // namespace
-
-bool HasHdf5Signature(const fs::path& path) {
+// The HDF5 signature at byte 0 or after a user block of 512, 1024, 2048, … bytes of `fd`.
+bool HasHdf5SignatureAt(int fd) {
   static constexpr unsigned char kSignature[8] = {0x89, 'H', 'D', 'F', '\r', '\n', 0x1a, '\n'};
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return false;
   bool found = false;
   for (off_t at = 0; at <= (off_t{1} << 16) && !found; at = at == 0 ? 512 : at * 2) {
     unsigned char buf[8];
     if (::pread(fd, buf, 8, at) != 8) break;
     found = std::memcmp(buf, kSignature, 8) == 0;
   }
-  ::close(fd);
   return found;
 }
 
-Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const OpenOptions& options) {
-  Hdf5Quiet();
-  const std::string name = path.string();
-  if (!HasHdf5Signature(path)) {
-    return CorruptError(name + ": not an HDF5 file (an Imaris .ims file is HDF5)");
-  }
-  // Read without HDF5's file lock: a reader's lock would stop an acquisition from reopening the
-  // file for writing (and a writer's lock would refuse us).
-  OCTO_ASSIGN_OR_RETURN(hid_t raw_fapl, OCTO_H5(H5Pcreate(H5P_FILE_ACCESS)));
-  Hdf5Id fapl(raw_fapl);
-  OCTO_RETURN_IF_ERROR(OCTO_H5(H5Pset_file_locking(fapl.get(), false, true)).status());
-  Result<hid_t> opened = OCTO_H5(H5Fopen(name.c_str(), H5F_ACC_RDONLY, fapl.get()));
-  if (!opened.ok()) return opened.status().WithContext(name);
-  Hdf5Id file(*opened);
+// OpenImaris on the open `file`, followed as `access` says.
+Result<std::unique_ptr<VolumeSource>> OpenFile(Hdf5Id file, const std::string& name,
+                                               const OpenOptions& options,
+                                               const LinkAccess& access) {
   const hid_t f = file.get();
-  if (!LinkExists(f, "DataSet")) {
+  if (!LinkExists(f, "DataSet", access)) {
     return CorruptError(name + ": an HDF5 file without the Imaris group /DataSet");
   }
 
   // Levels, time points and channels are numbered groups.
-  const int64_t levels = CountNumbered(f, "DataSet", "ResolutionLevel ", kMaxLevels);
+  const int64_t levels = CountNumbered(f, "DataSet", "ResolutionLevel ", kMaxLevels, access);
   if (levels == 0) return CorruptError(name + ": /DataSet holds no \"ResolutionLevel 0\"");
   if (options.level < 0 || options.level >= levels) {
     return OutOfRangeError(name + ": resolution level " + Num(options.level) +
@@ -434,7 +470,7 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
                            ")");
   }
   const std::string level = "DataSet/ResolutionLevel " + Num(options.level);
-  const int64_t times = CountNumbered(f, level, "TimePoint ", kMaxTimePoints);
+  const int64_t times = CountNumbered(f, level, "TimePoint ", kMaxTimePoints, access);
   if (times == 0) return CorruptError(name + ": /" + level + " holds no \"TimePoint 0\"");
   if (times > kMaxTimePoints) {
     return ResourceExhaustedError(name + ": more than " + Num(kMaxTimePoints) + " time points");
@@ -450,7 +486,7 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   const std::string time = level + "/TimePoint " + Num(options.time);
   // Counted up to one past the limit: a file with more channels is refused before they size
   // anything.
-  const int64_t channels = CountNumbered(f, time, "Channel ", volume::kMaxChannels);
+  const int64_t channels = CountNumbered(f, time, "Channel ", volume::kMaxChannels, access);
   if (channels == 0) return CorruptError(name + ": /" + time + " holds no \"Channel 0\"");
   if (channels > volume::kMaxChannels) {
     return ResourceExhaustedError(name + ": /" + time + " holds more than " +
@@ -464,8 +500,8 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   std::array<hsize_t, 3> chunk{};
   for (int64_t c = 0; c < channels; ++c) {
     OCTO_RETURN_IF_ERROR(OpenChannel(f, time + "/Channel " + Num(c) + "/Data", name,
-                                     data[static_cast<size_t>(c)], dtype, big_endian, chunk,
-                                     c == 0));
+                                     data[static_cast<size_t>(c)], dtype, big_endian, chunk, c == 0,
+                                     access));
     if (data[static_cast<size_t>(c)].dims != data[0].dims) {
       return CorruptError(name + ": channel " + Num(c) +
                           "'s data array differs in size from "
@@ -482,8 +518,8 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   const char* kInfoSize[3] = {"X", "Y", "Z"};
   for (int a = 0; a < 3; ++a) {
     const int64_t stored = static_cast<int64_t>(data[0].dims[2 - a]);
-    std::optional<double> v = NumberAttribute(f, channel0, kSizeAttrs[a]);
-    if (!v && options.level == 0) v = NumberAttribute(f, "DataSetInfo/Image", kInfoSize[a]);
+    std::optional<double> v = NumberAttribute(f, channel0, kSizeAttrs[a], access);
+    if (!v && options.level == 0) v = NumberAttribute(f, "DataSetInfo/Image", kInfoSize[a], access);
     int64_t size = stored;
     if (v) {
       if (*v < 1 || *v != std::floor(*v) || *v > static_cast<double>(stored)) {
@@ -517,14 +553,14 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   // default, micrometres, when it names none).
   const std::string image = "DataSetInfo/Image";
   std::optional<double> um = 1.0;
-  if (std::optional<std::string> unit = TextAttribute(f, image, "Unit")) {
+  if (std::optional<std::string> unit = TextAttribute(f, image, "Unit", access)) {
     um = MicrometresPerUnit(*unit);
     if (!um) um = MicrometresPerLengthUnit(TrimWhitespace(*unit));
   }
   for (int a = 0; a < 3 && um; ++a) {
     const std::string k = std::to_string(a);
-    std::optional<double> lo = NumberAttribute(f, image, ("ExtMin" + k).c_str());
-    std::optional<double> hi = NumberAttribute(f, image, ("ExtMax" + k).c_str());
+    std::optional<double> lo = NumberAttribute(f, image, ("ExtMin" + k).c_str(), access);
+    std::optional<double> hi = NumberAttribute(f, image, ("ExtMax" + k).c_str(), access);
     if (lo && hi) info.spacing_um[a] = PositiveOrNone((*hi - *lo) * *um / info.size[a]);
   }
 
@@ -534,17 +570,17 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   for (int64_t c = 0; c < channels; ++c) {
     volume::ChannelInfo& ci = info.channels[static_cast<size_t>(c)];
     const std::string meta = "DataSetInfo/Channel " + Num(c);
-    if (std::optional<std::string> n = TextAttribute(f, meta, "Name")) ci.name = *n;
-    if (std::optional<std::string> col = TextAttribute(f, meta, "Color"))
+    if (std::optional<std::string> n = TextAttribute(f, meta, "Name", access)) ci.name = *n;
+    if (std::optional<std::string> col = TextAttribute(f, meta, "Color", access))
       ci.color = ImarisColor(*col);
-    if (std::optional<std::string> range = TextAttribute(f, meta, "ColorRange")) {
+    if (std::optional<std::string> range = TextAttribute(f, meta, "ColorRange", access)) {
       std::vector<double> lohi = NumberList(*range);
       if (lohi.size() == 2) {
         const std::string hist =
             "DataSet/ResolutionLevel 0/TimePoint " + Num(options.time) + "/Channel " + Num(c);
-        ci.window =
-            volume::DisplayWindow{lohi[0], lohi[1], NumberAttribute(f, hist, "HistogramMin"),
-                                  NumberAttribute(f, hist, "HistogramMax")};
+        ci.window = volume::DisplayWindow{lohi[0], lohi[1],
+                                          NumberAttribute(f, hist, "HistogramMin", access),
+                                          NumberAttribute(f, hist, "HistogramMax", access)};
       }
     }
   }
@@ -578,6 +614,41 @@ Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const Ope
   auto reader = std::make_unique<ImarisChunkReader>(name, std::move(file), std::move(data), chunk,
                                                     dtype, big_endian);
   return MakeChunkedVolume(std::move(info), std::move(layout), std::move(reader), chunked);
+}
+
+}  // namespace
+
+bool HasHdf5Signature(const fs::path& path, const FileGate& gate) {
+  Result<int> fd = gate.OpenForReading(path);
+  if (!fd.ok()) return false;
+  const ScopedFd owned(*fd);
+  return HasHdf5SignatureAt(*fd);
+}
+
+Result<std::unique_ptr<VolumeSource>> OpenImaris(const fs::path& path, const OpenOptions& options) {
+  Hdf5Quiet();
+  const std::string name = path.string();
+  const FileGate& gate = options.file_gate;
+  Result<int> fd = gate.OpenForReading(path);
+  if (!fd.ok() && IsOutsideFolderError(fd.status())) return fd.status();
+  const ScopedFd owned(fd.ok() ? *fd : -1);
+  if (!fd.ok() || !HasHdf5SignatureAt(*fd)) {
+    return CorruptError(name + ": not an HDF5 file (an Imaris .ims file is HDF5)");
+  }
+  // Confined, HDF5 reads the file the gate opened (not whatever the path leads to by now).
+  const std::string file_name = gate.confined() ? "/proc/self/fd/" + std::to_string(*fd) : name;
+  // Read without HDF5's file lock: a reader's lock would stop an acquisition from reopening the
+  // file for writing (and a writer's lock would refuse us).
+  OCTO_ASSIGN_OR_RETURN(hid_t raw_fapl, OCTO_H5(H5Pcreate(H5P_FILE_ACCESS)));
+  Hdf5Id fapl(raw_fapl);
+  OCTO_RETURN_IF_ERROR(OCTO_H5(H5Pset_file_locking(fapl.get(), false, true)).status());
+  OCTO_ASSIGN_OR_RETURN(const LinkAccess access, LinkAccess::Make(gate.confined()));
+  Result<hid_t> opened = OCTO_H5(H5Fopen(file_name.c_str(), H5F_ACC_RDONLY, fapl.get()));
+  if (!opened.ok()) return opened.status().WithContext(name);
+  Result<std::unique_ptr<VolumeSource>> source = OpenFile(Hdf5Id(*opened), name, options, access);
+  // An external link met anywhere (its failure may have read as a missing group) refuses it all.
+  if (access.refused()) return OutsideFolderError();
+  return source;
 }
 
 }  // namespace octoscope::io

@@ -21,6 +21,7 @@
 #include <filesystem>
 #include <memory>
 
+#include "io/file_gate.h"
 #include "io/open_options.h"
 #include "io/volume_source.h"
 #include "util/result.h"
@@ -28,10 +29,12 @@
 namespace octoscope::io {
 
 // True when the file starts with the HDF5 signature (at byte 0, or after a user block at 512,
-// 1024, 2048, … bytes).
-bool HasHdf5Signature(const std::filesystem::path& path);
+// 1024, 2048, … bytes); false also when `gate` refuses it.
+bool HasHdf5Signature(const std::filesystem::path& path, const FileGate& gate = FileGate());
 
-// Opens an Imaris file. Format "imaris".
+// Opens an Imaris file. Format "imaris". Under a confined options.file_gate, external links and
+// data stored in other files (external storage, virtual datasets) are refused as the gate refuses
+// a path.
 Result<std::unique_ptr<VolumeSource>> OpenImaris(const std::filesystem::path& path,
                                                  const OpenOptions& options);
 

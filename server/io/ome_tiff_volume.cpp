@@ -8,13 +8,13 @@
 #include <utility>
 #include <vector>
 
+#include "io/file_gate.h"
 #include "io/ome_xml.h"
 #include "io/spacing.h"
 #include "io/tiff_file.h"
 #include "io/tiff_file_cache.h"
 #include "io/tiff_stack_volume.h"
 #include "util/checked_math.h"
-#include "util/file_reading.h"
 #include "util/strings.h"
 
 namespace octoscope::io {
@@ -183,17 +183,17 @@ struct XmlDocument {
 };
 
 // Loads the OME-XML held by `path` (a TIFF or an XML file) without following references. Sets
-// `*malformed_in_tiff` (when given) if `path` is a TIFF whose own OME-XML does not parse.
+// `*malformed_in_tiff` (when given) if `path` is a TIFF whose own OME-XML does not parse. Files
+// are read through the cache's gate.
 Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache,
                             bool* malformed_in_tiff = nullptr) {
-  std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) {
-    return NotFoundError(Quote(path) + ": no such file");
-  }
+  const FileGate& gate = cache.gate();
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, gate.Type(path));
+  if (type != fs::file_type::regular) return NotFoundError(Quote(path) + ": no such file");
   XmlDocument doc;
   doc.source = path;
   std::string xml;
-  if (HasTiffSignature(path)) {
+  if (HasTiffSignature(path, gate)) {
     doc.in_tiff = true;
     OCTO_ASSIGN_OR_RETURN(std::shared_ptr<TiffFile> file, cache.Get(path));
     if (file->ifd_count() < 1) return CorruptError(Quote(path) + ": TIFF without pages");
@@ -202,7 +202,7 @@ Result<XmlDocument> LoadXml(const fs::path& path, TiffFileCache& cache,
       return UnsupportedError(Quote(path) + ": not an OME-TIFF (no OME-XML in ImageDescription)");
     }
   } else {
-    OCTO_ASSIGN_OR_RETURN(xml, ReadSmallFile(path, kMaxOmeXmlBytes));
+    OCTO_ASSIGN_OR_RETURN(xml, gate.ReadSmallFile(path, kMaxOmeXmlBytes));
     if (!LooksLikeOmeXml(xml)) {
       return UnsupportedError(Quote(path) + ": neither a TIFF nor an OME-XML document");
     }
@@ -386,8 +386,8 @@ class PageFiles {
 
   // Opens file `index` (checking existence first, for a clear message).
   Result<std::shared_ptr<TiffFile>> Open(int index) {
-    std::error_code ec;
-    if (!fs::is_regular_file(files_[index], ec)) {
+    OCTO_ASSIGN_OR_RETURN(const fs::file_type type, cache_.gate().Type(files_[index]));
+    if (type != fs::file_type::regular) {
       return NotFoundError(source_ + ": OME-XML references " + Quote(files_[index]) +
                            ", which does not exist");
     }
@@ -597,7 +597,7 @@ Result<std::unique_ptr<VolumeSource>> Open(const fs::path& input, const OpenOpti
   const fs::path path = absolute.lexically_normal();
   TiffFile::Limits limits;
   limits.max_plane_bytes = options.max_plane_bytes;
-  auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles);
+  auto cache = std::make_shared<TiffFileCache>(limits, kMaxOpenOmeTiffFiles, options.file_gate);
 
   bool malformed = false;
   Result<XmlDocument> loaded = LoadMetadata(path, *cache, &malformed);

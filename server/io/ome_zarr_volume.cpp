@@ -3,17 +3,18 @@
 #include <algorithm>
 #include <climits>
 #include <cmath>
+#include <optional>
 #include <string>
 #include <system_error>
 #include <utility>
 #include <vector>
 
 #include "io/chunked_volume.h"
+#include "io/file_gate.h"
 #include "io/ome_xml.h"
 #include "io/spacing.h"
 #include "io/zarr_array.h"
 #include "util/checked_math.h"
-#include "util/file_reading.h"
 #include "util/strings.h"
 #include "volume/volume_info.h"
 
@@ -27,9 +28,10 @@ constexpr int kParentLevelsSearched = 3;  // An array path may be this deep insi
 
 std::string Num(int64_t v) { return std::to_string(v); }
 
-bool Exists(const fs::path& p) {
-  std::error_code ec;
-  return fs::exists(p, ec);
+// Whether anything is at `p` (as `gate` lets it be seen).
+Result<bool> Exists(const FileGate& gate, const fs::path& p) {
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, gate.Type(p));
+  return type != fs::file_type::not_found;
 }
 
 // What a Zarr node (group or array folder) says about itself.
@@ -38,26 +40,30 @@ struct Node {
   NgffAttributes attrs;
 };
 
-Result<NgffAttributes> ParseAttributesFile(const fs::path& file, const ZarrJsonParsers& parsers) {
-  OCTO_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(file, kMaxZarrJsonBytes));
-  Result<NgffAttributes> attrs = parsers.attributes(text);
+Result<NgffAttributes> ParseAttributesFile(const fs::path& file, const OpenOptions& options) {
+  OCTO_ASSIGN_OR_RETURN(std::string text, options.file_gate.ReadSmallFile(file, kMaxZarrJsonBytes));
+  Result<NgffAttributes> attrs = options.zarr_json.attributes(text);
   if (!attrs.ok()) return attrs.status().WithContext(file.string());
   return attrs;
 }
 
 // Reads the node at `dir`: v3 `zarr.json`, or v2 `.zarray` / `.zgroup` / `.zattrs`. NotFound when
 // `dir` holds none of them.
-Result<Node> ReadNode(const fs::path& dir, const ZarrJsonParsers& parsers) {
+Result<Node> ReadNode(const fs::path& dir, const OpenOptions& options) {
+  const FileGate& gate = options.file_gate;
   Node node;
-  if (Exists(dir / "zarr.json")) {
-    OCTO_ASSIGN_OR_RETURN(node.attrs, ParseAttributesFile(dir / "zarr.json", parsers));
+  OCTO_ASSIGN_OR_RETURN(const bool v3, Exists(gate, dir / "zarr.json"));
+  if (v3) {
+    OCTO_ASSIGN_OR_RETURN(node.attrs, ParseAttributesFile(dir / "zarr.json", options));
     node.is_array = node.attrs.node_type == "array";
     return node;
   }
-  node.is_array = Exists(dir / ".zarray");
-  if (Exists(dir / ".zattrs")) {
-    OCTO_ASSIGN_OR_RETURN(node.attrs, ParseAttributesFile(dir / ".zattrs", parsers));
-  } else if (!node.is_array && !Exists(dir / ".zgroup")) {
+  OCTO_ASSIGN_OR_RETURN(node.is_array, Exists(gate, dir / ".zarray"));
+  OCTO_ASSIGN_OR_RETURN(const bool has_attrs, Exists(gate, dir / ".zattrs"));
+  OCTO_ASSIGN_OR_RETURN(const bool has_group, Exists(gate, dir / ".zgroup"));
+  if (has_attrs) {
+    OCTO_ASSIGN_OR_RETURN(node.attrs, ParseAttributesFile(dir / ".zattrs", options));
+  } else if (!node.is_array && !has_group) {
     return NotFoundError(dir.string() +
                          ": not a Zarr group or array (no zarr.json, .zgroup, .zattrs or .zarray)");
   }
@@ -117,21 +123,33 @@ Result<Selection> SelectLevel(Selection sel, const OpenOptions& options) {
   return sel;
 }
 
-// An array folder the user named directly: a level of an image above it, or a bare array.
+// An array folder the user named directly: a level of an image above it, or a bare array. The
+// search never looks beyond what the gate admits (a dataset's own folder): the array is then read
+// as a bare array.
 Result<Selection> SelectFromArray(const fs::path& dir, const OpenOptions& options) {
+  const FileGate& gate = options.file_gate;
   std::error_code ec;
-  const fs::path self = fs::weakly_canonical(dir, ec);
+  // Where a path leads: resolved by the gate, then made canonical (a no-op when confined).
+  auto real = [&](const fs::path& p) -> std::optional<fs::path> {
+    Result<fs::path> resolved = gate.Resolve(p);
+    if (!resolved.ok()) return std::nullopt;
+    fs::path canonical = fs::weakly_canonical(*resolved, ec);
+    if (ec) return std::nullopt;
+    return canonical;
+  };
+  const std::optional<fs::path> self = real(dir);
   fs::path up = dir;
-  for (int i = 0; i < kParentLevelsSearched && !ec; ++i) {
-    up = fs::weakly_canonical(up / "..", ec);
-    if (ec) break;
-    Result<Node> node = ReadNode(up, options.zarr_json);
+  for (int i = 0; i < kParentLevelsSearched && self; ++i) {
+    const std::optional<fs::path> parent = real(up / "..");
+    if (!parent) break;
+    up = *parent;
+    Result<Node> node = ReadNode(up, options);
     if (!node.ok()) continue;  // Not a group (or unreadable): keep looking further up.
     const std::vector<NgffMultiscale>& ms = node->attrs.multiscales;
     for (size_t m = 0; m < ms.size(); ++m) {
       for (size_t d = 0; d < ms[m].datasets.size(); ++d) {
         Result<fs::path> level_dir = DatasetDir(up, ms[m].datasets[d].path, up.string());
-        if (!level_dir.ok() || fs::weakly_canonical(*level_dir, ec) != self) continue;
+        if (!level_dir.ok() || real(*level_dir) != self) continue;
         if (options.level != 0 && options.level != static_cast<int>(d)) {
           return InvalidArgumentError(dir.string() + " is resolution level " + Num(d) +
                                       " of the image " + up.string() + "; open the image to " +
@@ -158,7 +176,7 @@ Result<Selection> SelectFromArray(const fs::path& dir, const OpenOptions& option
 }
 
 Result<Selection> Select(const fs::path& root, const OpenOptions& options) {
-  OCTO_ASSIGN_OR_RETURN(Node node, ReadNode(root, options.zarr_json));
+  OCTO_ASSIGN_OR_RETURN(Node node, ReadNode(root, options));
   if (node.is_array) {
     if (options.series != 0) {
       return OutOfRangeError(root.string() + ": a Zarr array holds one series (asked for " +
@@ -186,13 +204,17 @@ Result<Selection> Select(const fs::path& root, const OpenOptions& options) {
     }
     // Series are the sub-groups "0", "1", … (the layout's definition).
     int count = 0;
-    while (count < kMaxSeriesScan && Exists(root / std::to_string(count))) ++count;
+    for (; count < kMaxSeriesScan; ++count) {
+      OCTO_ASSIGN_OR_RETURN(const bool exists,
+                            Exists(options.file_gate, root / std::to_string(count)));
+      if (!exists) break;
+    }
     if (options.series >= count) {
       return OutOfRangeError(root.string() + ": series " + Num(options.series) +
                              " asked for, the bioformats2raw group has " + Num(count));
     }
     const fs::path group = root / std::to_string(options.series);
-    OCTO_ASSIGN_OR_RETURN(Node image, ReadNode(group, options.zarr_json));
+    OCTO_ASSIGN_OR_RETURN(Node image, ReadNode(group, options));
     if (image.attrs.multiscales.empty()) {
       return CorruptError(group.string() + ": series group without multiscales metadata");
     }
@@ -348,11 +370,12 @@ std::optional<double> MicrometresPerNgffUnit(std::string_view unit) {
   return MicrometresPerUnit(unit);
 }
 
-bool LooksLikeZarr(const fs::path& path) {
-  std::error_code ec;
-  if (fs::is_directory(path, ec)) {
+Result<bool> LooksLikeZarr(const fs::path& path, const FileGate& gate) {
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, gate.Type(path));
+  if (type == fs::file_type::directory) {
     for (const char* f : {".zgroup", ".zattrs", ".zarray", "zarr.json"}) {
-      if (Exists(path / f)) return true;
+      OCTO_ASSIGN_OR_RETURN(const bool exists, Exists(gate, path / f));
+      if (exists) return true;
     }
     return false;
   }
@@ -363,14 +386,15 @@ bool LooksLikeZarr(const fs::path& path) {
 
 Result<std::unique_ptr<VolumeSource>> OpenOmeZarr(const fs::path& path,
                                                   const OpenOptions& options) {
-  std::error_code ec;
-  const fs::path root = fs::is_directory(path, ec) ? path : path.parent_path();
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, options.file_gate.Type(path));
+  const fs::path root = type == fs::file_type::directory ? path : path.parent_path();
   if (!options.zarr_json.array || !options.zarr_json.attributes) {
     return UnsupportedError(root.string() + ": Zarr metadata parsing is not enabled");
   }
   OCTO_ASSIGN_OR_RETURN(Selection sel, Select(root, options));
-  OCTO_ASSIGN_OR_RETURN(ZarrArrayMetadata meta,
-                        LoadZarrArray(sel.array_dir, options.zarr_json, options.max_chunk_bytes));
+  OCTO_ASSIGN_OR_RETURN(
+      ZarrArrayMetadata meta,
+      LoadZarrArray(sel.array_dir, options.zarr_json, options.max_chunk_bytes, options.file_gate));
   const std::string name = sel.array_dir.string();
   const size_t dims = meta.shape.size();
   if (!sel.bare) {
@@ -441,13 +465,16 @@ Result<std::unique_ptr<VolumeSource>> OpenOmeZarr(const fs::path& path,
   layout.z_dim = map.z;
   layout.channel_dim = map.c;
   layout.time_dim = map.t;
+  // Chunk files are many: resolved from the store's folder held open.
+  OCTO_ASSIGN_OR_RETURN(FileGate chunks, options.file_gate.Pinned());
   ChunkedVolumeOptions chunked;
   chunked.name = name;
   chunked.fill_value = meta.fill_value.value_or(0);
   chunked.cache_bytes = options.chunk_cache_bytes;
   chunked.threads = options.decode_threads;
   return MakeChunkedVolume(std::move(info), std::move(layout),
-                           MakeZarrChunkReader(sel.array_dir, std::move(meta)), chunked);
+                           MakeZarrChunkReader(sel.array_dir, std::move(meta), std::move(chunks)),
+                           chunked);
 }
 
 }  // namespace octoscope::io

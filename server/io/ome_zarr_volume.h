@@ -26,8 +26,9 @@
 namespace octoscope::io {
 
 // True when `path` is (or is a metadata file of) a Zarr group or array: a folder holding
-// `.zgroup`, `.zattrs`, `.zarray` or `zarr.json`, or one of those files.
-bool LooksLikeZarr(const std::filesystem::path& path);
+// `.zgroup`, `.zattrs`, `.zarray` or `zarr.json`, or one of those files. Looks through `gate`
+// (and fails with its refusal).
+Result<bool> LooksLikeZarr(const std::filesystem::path& path, const FileGate& gate);
 
 // Opens the OME-Zarr image, level or array at `path`. Format "ome-zarr" (NGFF metadata) or "zarr"
 // (a bare array).

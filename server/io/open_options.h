@@ -1,5 +1,6 @@
 // OpenOptions: what a user may say about how to open a volume (series, time point, resolution
-// level, spacing overrides) and the safety limits every reader enforces against lying headers.
+// level, spacing overrides), the safety limits every reader enforces against lying headers, and
+// the gate every reader passes for each file it touches.
 //
 // Thread safety: a plain value type.
 #ifndef OCTOSCOPE_IO_OPEN_OPTIONS_H_
@@ -11,7 +12,9 @@
 #include <functional>
 #include <optional>
 #include <string>
+#include <string_view>
 
+#include "io/file_gate.h"
 #include "io/raw_layout.h"
 #include "io/zarr_metadata.h"
 #include "util/result.h"
@@ -27,9 +30,10 @@ struct OpenOptions {
   // Refuses files whose single xy plane of one channel would exceed this (a lying header must not
   // size an allocation).
   uint64_t max_plane_bytes = uint64_t{4} << 30;
-  // Parses an Octoscope JSON raw sidecar. Set by app/ (protocol/ owns JSON); when unset, JSON
-  // sidecars are reported as unsupported.
-  std::function<Result<RawLayout>(const std::filesystem::path& sidecar)> load_raw_sidecar;
+  // Parses the text of the Octoscope JSON raw sidecar `sidecar` (read through file_gate). Set by
+  // app/ (protocol/ owns JSON); when unset, JSON sidecars are reported as unsupported.
+  std::function<Result<RawLayout>(std::string_view text, const std::filesystem::path& sidecar)>
+      parse_raw_sidecar;
   // Parse Zarr's JSON documents. Set by app/ (protocol/ owns JSON); when unset, OME-Zarr is
   // reported as unsupported.
   ZarrJsonParsers zarr_json;
@@ -46,6 +50,9 @@ struct OpenOptions {
   // the reader had to guess or ignore), right after opening, so a command can show it before a
   // long read. Unset: the warnings are only in info().
   std::function<void(const std::string& warning)> on_warning;
+  // Every file a reader opens, stats or lists passes this gate: the server confines a dataset to
+  // its own folder (FileGate::ForDataset); the default admits every path (the command-line tools).
+  FileGate file_gate;
 };
 
 }  // namespace octoscope::io

@@ -16,6 +16,9 @@
 
 namespace octoscope::io {
 
+// Sidecar files larger than this are refused unread.
+inline constexpr uint64_t kMaxRawSidecarBytes = uint64_t{1} << 20;
+
 struct RawLayout {
   std::filesystem::path data_file;       // The raw file itself (absolute or sidecar-relative).
   std::array<int64_t, 3> size{0, 0, 0};  // x, y, z.

@@ -1,6 +1,5 @@
 #include "io/raw_volume.h"
 
-#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -173,18 +172,18 @@ Result<std::unique_ptr<VolumeSource>> OpenRawVolume(const RawLayout& layout,
                                   " bytes, more than the limit of " + Num(options.max_plane_bytes));
   }
 
-  int raw_fd = ::open(layout.data_file.c_str(), O_RDONLY | O_CLOEXEC);
-  if (raw_fd < 0) {
-    const int err = errno;
-    if (err == ENOENT) return NotFoundError(name + ": raw data file not found");
-    return IoError(name + ": cannot open raw data file: " + std::strerror(err));
+  Result<int> raw_fd = options.file_gate.OpenForReading(layout.data_file);
+  if (!raw_fd.ok()) {
+    if (raw_fd.status().code() == StatusCode::kNotFound) {
+      return NotFoundError(name + ": raw data file not found");
+    }
+    return raw_fd.status();
   }
-  auto file = std::make_shared<RawFile>(raw_fd, name);
+  auto file = std::make_shared<RawFile>(*raw_fd, name);
   struct stat st;
   if (::fstat(file->get(), &st) != 0) {
     return IoError(name + ": cannot stat raw data file: " + std::strerror(errno));
   }
-  if (!S_ISREG(st.st_mode)) return UnsupportedError(name + ": not a regular file");
   const uint64_t file_size = static_cast<uint64_t>(st.st_size);
   if (file_size < *need) {
     return CorruptError(name + ": raw file is truncated: it holds " + Num(file_size) +

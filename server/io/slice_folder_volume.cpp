@@ -11,6 +11,7 @@
 #include <utility>
 #include <vector>
 
+#include "io/file_gate.h"
 #include "io/slice_names.h"
 #include "io/spacing.h"
 #include "io/tiff_file.h"
@@ -32,25 +33,56 @@ struct FolderChannel {
 struct Listing {
   std::vector<std::filesystem::path> tiffs;
   std::vector<std::filesystem::path> folders;
+  // Links a confined gate does not let be looked at as channel sub-folders.
+  std::vector<std::filesystem::path> outside_links;
 };
 
-Result<Listing> ListFolder(const std::filesystem::path& dir) {
+// Lists `dir` through `gate`. Under a confined gate a symbolic link is classified through the gate
+// too, and only where it may matter: a link with a TIFF name is a slice (one leading out of the
+// folder refuses the folder, whether its target exists or not); with `want_folders`, when `dir`
+// holds no TIFF, any other link may be a channel sub-folder (one leading out of the folder is not
+// looked at, and listed in outside_links).
+Result<Listing> ListFolder(const std::filesystem::path& dir, const FileGate& gate,
+                           bool want_folders) {
   Listing listing;
+  std::vector<std::filesystem::path> links;
+  OCTO_ASSIGN_OR_RETURN(const std::filesystem::path real, gate.Resolve(dir));
   std::error_code ec;
-  std::filesystem::directory_iterator it(dir, ec);
+  std::filesystem::directory_iterator it(real, ec);
   if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
   for (; it != std::filesystem::directory_iterator(); it.increment(ec)) {
     if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
     const std::string name = it->path().filename().string();
     if (name.empty() || name[0] == '.') continue;  // Hidden (also macOS "._x.tif" sidecars).
+    const std::filesystem::path path = dir / name;
     std::error_code type_ec;
-    if (it->is_directory(type_ec)) {
-      listing.folders.push_back(it->path());
+    if (gate.confined() && it->is_symlink(type_ec)) {
+      links.push_back(path);
+    } else if (it->is_directory(type_ec)) {
+      listing.folders.push_back(path);
     } else if (it->is_regular_file(type_ec) && IsTiffName(name)) {
-      listing.tiffs.push_back(it->path());
+      listing.tiffs.push_back(path);
     }
   }
   if (ec) return IoError(dir.string() + ": cannot list folder: " + ec.message());
+  std::stable_partition(links.begin(), links.end(), [](const std::filesystem::path& p) {
+    return IsTiffName(p.filename().string());
+  });
+  for (const std::filesystem::path& link : links) {
+    const bool tiff_name = IsTiffName(link.filename().string());
+    if (!tiff_name && !(want_folders && listing.tiffs.empty())) break;
+    Result<std::filesystem::file_type> linked = gate.Type(link);
+    if (!tiff_name && IsOutsideFolderError(linked.status())) {
+      listing.outside_links.push_back(link);
+      continue;
+    }
+    OCTO_ASSIGN_OR_RETURN(const std::filesystem::file_type type, std::move(linked));
+    if (type == std::filesystem::file_type::directory) {
+      listing.folders.push_back(link);
+    } else if (type == std::filesystem::file_type::regular && tiff_name) {
+      listing.tiffs.push_back(link);
+    }
+  }
   auto by_name = [](const std::filesystem::path& a, const std::filesystem::path& b) {
     return NaturalLess(a.filename().string(), b.filename().string());
   };
@@ -187,12 +219,12 @@ class SliceFolderVolume final : public VolumeSource {
   // REQUIRES: every file of `channels` was checked to have first_ifd's layout; channels non-empty,
   // all with the same number of files.
   SliceFolderVolume(std::string name, volume::VolumeInfo info, std::vector<FolderChannel> channels,
-                    const TiffIfd& first_ifd, TiffFile::Limits limits)
+                    const TiffIfd& first_ifd, TiffFile::Limits limits, const FileGate& gate)
       : name_(std::move(name)),
         info_(std::move(info)),
         channels_(std::move(channels)),
         layout_(first_ifd),
-        cache_(limits, kMaxOpenSliceFiles) {}
+        cache_(limits, kMaxOpenSliceFiles, gate) {}
 
   const volume::VolumeInfo& info() const override { return info_; }
 
@@ -233,10 +265,13 @@ class SliceFolderVolume final : public VolumeSource {
 Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::path& dir,
                                                       const OpenOptions& options) {
   const std::string name = dir.string();
-  std::error_code ec;
-  const auto status = std::filesystem::status(dir, ec);
-  if (ec || !std::filesystem::exists(status)) return NotFoundError(name + ": no such folder");
-  if (!std::filesystem::is_directory(status)) return InvalidArgumentError(name + ": not a folder");
+  const FileGate& gate = options.file_gate;
+  OCTO_ASSIGN_OR_RETURN(const std::filesystem::file_type type, gate.Type(dir));
+  if (type == std::filesystem::file_type::not_found)
+    return NotFoundError(name + ": no such folder");
+  if (type != std::filesystem::file_type::directory) {
+    return InvalidArgumentError(name + ": not a folder");
+  }
   if (options.series != 0 || options.time != 0) {
     return OutOfRangeError(name +
                            ": a slice folder holds one series and one time point (asked "
@@ -245,13 +280,13 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
                            std::to_string(options.time) + ")");
   }
 
-  OCTO_ASSIGN_OR_RETURN(Listing top, ListFolder(dir));
+  OCTO_ASSIGN_OR_RETURN(Listing top, ListFolder(dir, gate, true));
   std::vector<FolderChannel> channels;
   if (!top.tiffs.empty()) {
     OCTO_ASSIGN_OR_RETURN(channels, SplitFlatFolder(dir, top.tiffs));
   } else {
     for (const auto& sub : top.folders) {
-      OCTO_ASSIGN_OR_RETURN(Listing inner, ListFolder(sub));
+      OCTO_ASSIGN_OR_RETURN(Listing inner, ListFolder(sub, gate, false));
       if (!inner.tiffs.empty()) channels.push_back({sub.filename().string(), inner.tiffs});
     }
   }
@@ -279,7 +314,8 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   for (size_t c = 0; c < channels.size(); ++c) {
     for (size_t z = 0; z < slices; ++z) {
       const std::filesystem::path& path = channels[c].files[z];
-      OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, file_limits));
+      OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file,
+                            TiffFile::Open(path, file_limits, gate));
       std::optional<int> index = SliceIfd(*file);
       if (!index) {
         return UnsupportedError(path.string() + ": has " + std::to_string(file->ifd_count()) +
@@ -309,6 +345,12 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
 
   volume::VolumeInfo info;
   info.format = "slice-folder";
+  if (top.tiffs.empty()) {
+    for (const std::filesystem::path& link : top.outside_links) {
+      info.warnings.push_back(name + ": " + link.filename().string() +
+                              " is not read as a channel: it leads outside the folder");
+    }
+  }
   info.size = {first->width, first->height, static_cast<int64_t>(slices)};
   info.dtype = *first->dtype;
   const int samples = first->samples_per_pixel;
@@ -326,7 +368,7 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   if (Status s = info.Validate(); !s.ok()) return s.WithContext(name);
 
   auto volume = std::make_unique<SliceFolderVolume>(name, std::move(info), std::move(channels),
-                                                    *first, limits);
+                                                    *first, limits, gate);
   for (auto& [key, file] : warm) volume->cache().Put(key, std::move(file));
   return std::unique_ptr<VolumeSource>(std::move(volume));
 }

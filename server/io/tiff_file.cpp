@@ -337,17 +337,8 @@ Status CheckBlockSize(TIFF* tif, const TiffIfd& ifd, const std::string& where,
 TiffFile::~TiffFile() = default;
 
 Result<std::unique_ptr<TiffFile>> TiffFile::Open(const std::filesystem::path& path,
-                                                 const Limits& limits) {
-  const std::string name = path.string();
-  std::error_code ec;
-  auto status = std::filesystem::status(path, ec);
-  if (ec || !std::filesystem::exists(status)) return NotFoundError(name + ": no such file");
-  if (!std::filesystem::is_regular_file(status)) {
-    return UnsupportedError(name + ": not a regular file");
-  }
-
-  const int fd = ::open(name.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return IoError(name + ": cannot open: " + std::strerror(errno));
+                                                 const Limits& limits, const FileGate& gate) {
+  OCTO_ASSIGN_OR_RETURN(const int fd, gate.OpenForReading(path));
   return OpenDescriptor(fd, path, limits);
 }
 
@@ -1072,13 +1063,12 @@ std::string DescribePage(const TiffIfd& ifd) {
               : std::string());
 }
 
-bool HasTiffSignature(const std::filesystem::path& path) {
-  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return false;
+bool HasTiffSignature(const std::filesystem::path& path, const FileGate& gate) {
+  Result<int> fd = gate.OpenForReading(path);
+  if (!fd.ok()) return false;
+  const ScopedFd owned(*fd);
   std::byte head[4] = {};
-  const bool read = ReadFully(fd, 0, head, path.string()).ok();
-  ::close(fd);
-  if (!read) return false;
+  if (!ReadFully(*fd, 0, head, path.string()).ok()) return false;
   const std::string_view s(reinterpret_cast<const char*>(head), 4);
   return s == std::string_view("II*\0", 4) || s == std::string_view("MM\0*", 4) ||
          s == std::string_view("II+\0", 4) || s == std::string_view("MM\0+", 4);

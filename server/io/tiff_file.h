@@ -32,6 +32,7 @@
 #include <string>
 #include <vector>
 
+#include "io/file_gate.h"
 #include "io/volume_source.h"
 #include "util/result.h"
 #include "volume/data_type.h"
@@ -78,11 +79,12 @@ class TiffFile final : public PositionedFile {
     uint64_t max_cached_bytes = uint64_t{64} << 20;
   };
 
-  // Opens `path` and indexes every IFD. Errors: not a TIFF, not a regular file (Unsupported),
-  // truncated, IFD loop, more IFDs than Limits allow, a plane or a strip/tile larger than Limits
-  // allow.
+  // Opens `path` (through `gate`) and indexes every IFD. Errors: not a TIFF, not a regular file
+  // (Unsupported), truncated, IFD loop, more IFDs than Limits allow, a plane or a strip/tile
+  // larger than Limits allow; the gate's refusal.
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path,
-                                                const Limits& limits);
+                                                const Limits& limits,
+                                                const FileGate& gate = FileGate());
   static Result<std::unique_ptr<TiffFile>> Open(const std::filesystem::path& path) {
     return Open(path, Limits{});
   }
@@ -156,8 +158,9 @@ class TiffFile final : public PositionedFile {
 // messages.
 std::string DescribePage(const TiffIfd& ifd);
 
-// True when the file starts with a TIFF or BigTIFF signature (either byte order).
-bool HasTiffSignature(const std::filesystem::path& path);
+// True when the file starts with a TIFF or BigTIFF signature (either byte order); false also when
+// `gate` refuses it.
+bool HasTiffSignature(const std::filesystem::path& path, const FileGate& gate = FileGate());
 
 }  // namespace octoscope::io
 

@@ -1,6 +1,7 @@
 #include "io/tiff_file_cache.h"
 
 #include <algorithm>
+#include <utility>
 
 namespace octoscope::io {
 
@@ -9,8 +10,10 @@ TiffFile::Limits TiffFileCache::PerFileLimits(TiffFile::Limits limits, size_t ca
   return limits;
 }
 
-TiffFileCache::TiffFileCache(TiffFile::Limits limits, size_t capacity)
-    : limits_(PerFileLimits(limits, capacity)), capacity_(capacity < 1 ? 1 : capacity) {}
+TiffFileCache::TiffFileCache(TiffFile::Limits limits, size_t capacity, FileGate gate)
+    : limits_(PerFileLimits(limits, capacity)),
+      capacity_(capacity < 1 ? 1 : capacity),
+      gate_(std::move(gate)) {}
 
 Result<std::shared_ptr<TiffFile>> TiffFileCache::Get(const std::filesystem::path& path) {
   {
@@ -21,7 +24,7 @@ Result<std::shared_ptr<TiffFile>> TiffFileCache::Get(const std::filesystem::path
     }
   }
   // Index the file outside the lock (it reads every IFD).
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> opened, TiffFile::Open(path, limits_));
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> opened, TiffFile::Open(path, limits_, gate_));
   std::shared_ptr<TiffFile> file(std::move(opened));
   Put(path, file);
   return file;

@@ -6,6 +6,8 @@
 // max_cached_bytes): each file opened here gets 1/capacity of it, so the cache as a whole keeps
 // no more than one file alone would.
 //
+// Files are opened through the cache's FileGate (the reader's OpenOptions::file_gate).
+//
 // Invariant: at most `capacity` files are held by the cache (callers may briefly hold more).
 // Thread safety: thread-safe. Opening (indexing) a file happens outside the lock, so other
 // threads keep reading cached files meanwhile; if two threads open the same file at once, the
@@ -21,6 +23,7 @@
 #include <string>
 #include <unordered_map>
 
+#include "io/file_gate.h"
 #include "io/tiff_file.h"
 #include "util/result.h"
 
@@ -29,7 +32,7 @@ namespace octoscope::io {
 class TiffFileCache {
  public:
   // REQUIRES: capacity >= 1.
-  TiffFileCache(TiffFile::Limits limits, size_t capacity);
+  TiffFileCache(TiffFile::Limits limits, size_t capacity, FileGate gate = FileGate());
 
   // `limits` with max_cached_bytes shared among `capacity` files: what the cache opens files with
   // (and what files opened elsewhere and Put here should be opened with).
@@ -43,6 +46,8 @@ class TiffFileCache {
 
   size_t size() const;
   size_t capacity() const { return capacity_; }
+  // The gate every file is opened through.
+  const FileGate& gate() const { return gate_; }
 
  private:
   using Order = std::list<std::string>;  // Most recently used first.
@@ -53,6 +58,7 @@ class TiffFileCache {
 
   const TiffFile::Limits limits_;
   const size_t capacity_;
+  const FileGate gate_;
   mutable std::mutex mutex_;
   Order order_;                                     // GUARDED_BY(mutex_)
   std::unordered_map<std::string, Entry> entries_;  // GUARDED_BY(mutex_)

@@ -537,7 +537,8 @@ Result<std::unique_ptr<VolumeSource>> OpenTiffStack(const std::filesystem::path&
                                                     const OpenOptions& options) {
   TiffFile::Limits limits;
   limits.max_plane_bytes = options.max_plane_bytes;
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file, TiffFile::Open(path, limits));
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file,
+                        TiffFile::Open(path, limits, options.file_gate));
   return OpenTiffStack(std::move(file), options);
 }
 

@@ -6,7 +6,6 @@
 #include <string>
 #include <utility>
 
-#include "util/file_reading.h"
 #include "util/strings.h"
 
 namespace octoscope::io {
@@ -38,9 +37,9 @@ std::optional<volume::DataType> VoreenFormat(std::string_view format) {
 
 }  // namespace
 
-Result<RawLayout> ReadVoreenVvd(const std::filesystem::path& vvd) {
+Result<RawLayout> ReadVoreenVvd(const std::filesystem::path& vvd, const FileGate& gate) {
   const std::string name = vvd.string();
-  OCTO_ASSIGN_OR_RETURN(const std::string text, ReadSmallFile(vvd, kMaxVvdBytes));
+  OCTO_ASSIGN_OR_RETURN(const std::string text, gate.ReadSmallFile(vvd, kMaxVvdBytes));
 
   pugi::xml_document doc;
   pugi::xml_parse_result parsed = doc.load_buffer(text.data(), text.size());

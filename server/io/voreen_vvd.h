@@ -12,15 +12,18 @@
 
 #include <filesystem>
 
+#include "io/file_gate.h"
 #include "io/raw_layout.h"
 #include "util/result.h"
 
 namespace octoscope::io {
 
-// Reads the first <Volume> of `vvd`. data_file is RawData@filename resolved against the .vvd's
-// directory. Formats: uint8, uint16, int8, int16, uint32, int32, float, double. Errors: not
-// XML, no RawData, a missing or non-positive size, an unsupported format, a bad spacing.
-Result<RawLayout> ReadVoreenVvd(const std::filesystem::path& vvd);
+// Reads (through `gate`) the first <Volume> of `vvd`. data_file is RawData@filename resolved
+// against the .vvd's directory. Formats: uint8, uint16, int8, int16, uint32, int32, float, double.
+// Errors: not XML, no RawData, a missing or non-positive size, an unsupported format, a bad
+// spacing.
+Result<RawLayout> ReadVoreenVvd(const std::filesystem::path& vvd,
+                                const FileGate& gate = FileGate());
 
 }  // namespace octoscope::io
 

@@ -1,6 +1,5 @@
 #include "io/zarr_array.h"
 
-#include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -11,7 +10,6 @@
 #include <deque>
 #include <map>
 #include <mutex>
-#include <system_error>
 #include <utility>
 
 #include "io/buffer_pool.h"
@@ -35,20 +33,25 @@ std::string Num(uint64_t v) { return std::to_string(v); }
 // expands incompressible data by well under 1/16, plus headers and checksums).
 uint64_t MaxEncodedBytes(uint64_t decoded) { return decoded + decoded / 16 + 4096; }
 
-// Opens `path` for reading; nullopt-like (fd -1) when it does not exist.
-Result<std::pair<std::unique_ptr<ScopedFd>, uint64_t>> OpenChunkFile(const fs::path& path) {
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) {
-    const int err = errno;
-    if (err == ENOENT || err == ENOTDIR) return std::pair(std::unique_ptr<ScopedFd>(), uint64_t{0});
-    return IoError(path.string() + ": cannot open chunk: " + std::strerror(err));
+// Opens `path` through `gate` for reading; nullopt-like (no descriptor) when it does not exist.
+Result<std::pair<std::unique_ptr<ScopedFd>, uint64_t>> OpenChunkFile(const FileGate& gate,
+                                                                     const fs::path& path) {
+  Result<int> fd = gate.OpenForReading(path);
+  if (!fd.ok()) {
+    switch (fd.status().code()) {
+      case StatusCode::kNotFound:
+        return std::pair(std::unique_ptr<ScopedFd>(), uint64_t{0});
+      case StatusCode::kUnsupported:
+        return CorruptError(path.string() + ": chunk is not a regular file");
+      default:
+        return fd.status();
+    }
   }
-  auto owned = std::make_unique<ScopedFd>(fd);
+  auto owned = std::make_unique<ScopedFd>(*fd);
   struct stat st;
-  if (::fstat(fd, &st) != 0) {
+  if (::fstat(*fd, &st) != 0) {
     return IoError(path.string() + ": cannot stat chunk: " + std::strerror(errno));
   }
-  if (!S_ISREG(st.st_mode)) return CorruptError(path.string() + ": chunk is not a regular file");
   return std::pair(std::move(owned), static_cast<uint64_t>(st.st_size));
 }
 
@@ -108,8 +111,11 @@ Status CheckEncoding(const ZarrChunkEncoding& e, size_t dims, const std::string&
 
 class ZarrChunkReader final : public ChunkReader {
  public:
-  ZarrChunkReader(fs::path dir, ZarrArrayMetadata meta)
-      : dir_(std::move(dir)), meta_(std::move(meta)), bps_(volume::BytesPerSample(meta_.dtype)) {
+  ZarrChunkReader(fs::path dir, ZarrArrayMetadata meta, FileGate gate)
+      : dir_(std::move(dir)),
+        meta_(std::move(meta)),
+        gate_(std::move(gate)),
+        bps_(volume::BytesPerSample(meta_.dtype)) {
     if (meta_.sharding) {
       const ZarrSharding& s = *meta_.sharding;
       inner_per_shard_.resize(meta_.chunks.size());
@@ -123,7 +129,7 @@ class ZarrChunkReader final : public ChunkReader {
   Result<bool> ReadChunk(std::span<const int64_t> index, std::span<std::byte> out) override {
     if (!meta_.sharding) {
       const fs::path path = dir_ / Key(index);
-      OCTO_ASSIGN_OR_RETURN(auto file, OpenChunkFile(path));
+      OCTO_ASSIGN_OR_RETURN(auto file, OpenChunkFile(gate_, path));
       if (!file.first) return false;
       if (file.second > MaxEncodedBytes(out.size())) {
         return CorruptError(path.string() + ": chunk file holds " + Num(file.second) +
@@ -163,7 +169,7 @@ class ZarrChunkReader final : public ChunkReader {
     }
     const std::string key = Key(shard);
     const fs::path path = dir_ / key;
-    OCTO_ASSIGN_OR_RETURN(auto file, OpenChunkFile(path));
+    OCTO_ASSIGN_OR_RETURN(auto file, OpenChunkFile(gate_, path));
     if (!file.first) return false;
     OCTO_ASSIGN_OR_RETURN(std::shared_ptr<const std::vector<uint64_t>> table,
                           ShardIndex(key, path, *file.first, file.second));
@@ -227,6 +233,7 @@ class ZarrChunkReader final : public ChunkReader {
 
   const fs::path dir_;
   const ZarrArrayMetadata meta_;
+  const FileGate gate_;
   const size_t bps_;
   // Encoded-chunk buffers, reused (a few per decoding thread at most).
   const std::shared_ptr<BufferPool> buffers_ = BufferPool::Create(16);
@@ -249,13 +256,13 @@ std::vector<int64_t> ReadChunkStrides(const ZarrArrayMetadata& meta) {
 }
 
 Result<ZarrArrayMetadata> LoadZarrArray(const fs::path& dir, const ZarrJsonParsers& parsers,
-                                        uint64_t max_chunk_bytes) {
-  std::error_code ec;
+                                        uint64_t max_chunk_bytes, const FileGate& gate) {
   fs::path file = dir / "zarr.json";
-  if (!fs::is_regular_file(file, ec)) file = dir / ".zarray";
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, gate.Type(file));
+  if (type != fs::file_type::regular) file = dir / ".zarray";
   const std::string name = file.string();
   if (!parsers.array) return UnsupportedError(name + ": Zarr metadata parsing is not enabled");
-  Result<std::string> text = ReadSmallFile(file, kMaxZarrJsonBytes);
+  Result<std::string> text = gate.ReadSmallFile(file, kMaxZarrJsonBytes);
   if (!text.ok()) {
     if (text.status().code() == StatusCode::kNotFound) {
       return NotFoundError(dir.string() + ": no Zarr array here (neither zarr.json nor .zarray)");
@@ -320,8 +327,9 @@ Result<ZarrArrayMetadata> LoadZarrArray(const fs::path& dir, const ZarrJsonParse
   return meta;
 }
 
-std::unique_ptr<ChunkReader> MakeZarrChunkReader(const fs::path& dir, ZarrArrayMetadata meta) {
-  return std::make_unique<ZarrChunkReader>(dir, std::move(meta));
+std::unique_ptr<ChunkReader> MakeZarrChunkReader(const fs::path& dir, ZarrArrayMetadata meta,
+                                                 FileGate gate) {
+  return std::make_unique<ZarrChunkReader>(dir, std::move(meta), std::move(gate));
 }
 
 }  // namespace octoscope::io

@@ -13,6 +13,7 @@
 #include <string>
 
 #include "io/chunked_volume.h"
+#include "io/file_gate.h"
 #include "io/open_options.h"
 #include "io/zarr_metadata.h"
 #include "util/result.h"
@@ -27,18 +28,21 @@ inline constexpr uint64_t kMaxShardIndexBytes = uint64_t{64} << 20;
 // Reads `dir/.zarray` (v2) or `dir/zarr.json` (v3) with `parsers.array` and checks what the
 // values mean: dims 1 .. 32, chunk extents >= 1, shapes >= 0, the decoded chunk (inner chunk when
 // sharded) at most `max_chunk_bytes`, codec chains and orders valid, shards divisible into inner
-// chunks. Errors name the metadata file.
+// chunks. Errors name the metadata file. Reads through `gate`.
 Result<ZarrArrayMetadata> LoadZarrArray(const std::filesystem::path& dir,
-                                        const ZarrJsonParsers& parsers, uint64_t max_chunk_bytes);
+                                        const ZarrJsonParsers& parsers, uint64_t max_chunk_bytes,
+                                        const FileGate& gate = FileGate());
 
 // The chunk grid the reader serves: the inner chunks when sharded, else the chunks.
 const std::vector<int64_t>& ReadChunkShape(const ZarrArrayMetadata& meta);
 // Element strides of a decoded chunk of that grid.
 std::vector<int64_t> ReadChunkStrides(const ZarrArrayMetadata& meta);
 
+// Chunk files are opened through `gate` (a chunk that leads out of it fails with its refusal).
 // REQUIRES: `meta` came from LoadZarrArray.
 std::unique_ptr<ChunkReader> MakeZarrChunkReader(const std::filesystem::path& dir,
-                                                 ZarrArrayMetadata meta);
+                                                 ZarrArrayMetadata meta,
+                                                 FileGate gate = FileGate());
 
 }  // namespace octoscope::io
 

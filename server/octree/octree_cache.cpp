@@ -10,8 +10,8 @@
 #include <cinttypes>
 #include <cstdio>
 #include <cstring>
-#include <fstream>
 #include <map>
+#include <span>
 #include <sstream>
 #include <system_error>
 
@@ -60,18 +60,24 @@ std::string ExactDouble(double v) {
 }
 
 // Hashes one file's identity into `hash`: relative name, size, mtime (ns) and first 64 KiB.
-Status HashFile(const fs::path& file, const std::string& relative, uint64_t& hash,
-                uint64_t& bytes) {
+Status HashFile(const fs::path& file, const std::string& relative, const io::FileGate& gate,
+                uint64_t& hash, uint64_t& bytes) {
+  Result<int> fd = gate.OpenForReading(file);
+  if (!fd.ok() && io::IsOutsideFolderError(fd.status())) return fd.status();
+  if (!fd.ok()) return IoError(file.string() + ": cannot stat");
+  const ScopedFd owned(*fd);
   struct stat st;
-  if (::stat(file.c_str(), &st) != 0) return IoError(file.string() + ": cannot stat");
+  if (::fstat(*fd, &st) != 0) return IoError(file.string() + ": cannot stat");
   hash = Fnv1a64(relative, hash);
   std::string meta = std::to_string(st.st_size) + ":" + std::to_string(st.st_mtim.tv_sec) + "." +
                      std::to_string(st.st_mtim.tv_nsec);
   hash = Fnv1a64(meta, hash);
-  std::ifstream in(file, std::ios::binary);
   std::string head(static_cast<size_t>(std::min<uint64_t>(st.st_size, kIdentityHeadBytes)), '\0');
-  in.read(head.data(), static_cast<std::streamsize>(head.size()));
-  if (!in) return IoError(file.string() + ": cannot read its first bytes");
+  if (!ReadFully(*fd, 0, std::as_writable_bytes(std::span<char>(head.data(), head.size())),
+                 file.string())
+           .ok()) {
+    return IoError(file.string() + ": cannot read its first bytes");
+  }
   hash = Fnv1a64(head, hash);
   bytes += static_cast<uint64_t>(st.st_size);
   return Status::Ok();
@@ -188,25 +194,35 @@ void CacheLock::RecordHolder() {
   if (::ftruncate(fd_, 0) == 0) (void)!::pwrite(fd_, text.data(), text.size(), 0);
 }
 
-Result<SourceIdentity> ComputeSourceIdentity(const fs::path& input) {
+Result<SourceIdentity> ComputeSourceIdentity(const fs::path& input, const io::FileGate& gate) {
   SourceIdentity id;
   id.hash = kFnvOffsetBasis;
-  std::error_code ec;
-  if (fs::is_directory(input, ec)) {
-    // Every regular file below the folder, in a fixed order.
+  OCTO_ASSIGN_OR_RETURN(const fs::file_type type, gate.Type(input));
+  if (type == fs::file_type::directory) {
+    OCTO_ASSIGN_OR_RETURN(const fs::path real, gate.Resolve(input));
+    // Every regular file below the folder, in a fixed order (a link only as the gate lets it be
+    // seen).
+    std::error_code ec;
     std::vector<fs::path> files;
-    for (fs::recursive_directory_iterator it(input, ec), end; !ec && it != end; it.increment(ec)) {
-      if (it->is_regular_file(ec)) files.push_back(it->path());
+    for (fs::recursive_directory_iterator it(real, ec), end; !ec && it != end; it.increment(ec)) {
+      const fs::path path = input / it->path().lexically_relative(real);
+      std::error_code type_ec;
+      if (gate.confined() && it->is_symlink(type_ec)) {
+        OCTO_ASSIGN_OR_RETURN(const fs::file_type linked, gate.Type(path));
+        if (linked == fs::file_type::regular) files.push_back(path);
+      } else if (it->is_regular_file(type_ec)) {
+        files.push_back(path);
+      }
     }
     if (ec) return IoError(input.string() + ": cannot list: " + ec.message());
     std::sort(files.begin(), files.end());
     for (const fs::path& f : files) {
       OCTO_RETURN_IF_ERROR(
-          HashFile(f, fs::relative(f, input, ec).string(), id.hash, id.file_bytes));
+          HashFile(f, fs::relative(f, input, ec).string(), gate, id.hash, id.file_bytes));
     }
     return id;
   }
-  OCTO_RETURN_IF_ERROR(HashFile(input, input.filename().string(), id.hash, id.file_bytes));
+  OCTO_RETURN_IF_ERROR(HashFile(input, input.filename().string(), gate, id.hash, id.file_bytes));
   return id;
 }
 

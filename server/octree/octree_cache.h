@@ -30,6 +30,7 @@
 #include <string>
 #include <vector>
 
+#include "io/file_gate.h"
 #include "octree/octree.h"
 #include "paging/page_cache.h"
 #include "paging/page_store.h"
@@ -41,13 +42,15 @@ namespace octoscope::octree {
 
 // What identifies a scan on disk: a hash over, for each of its files (the input file, or every
 // file below an input folder), the path relative to the input, the size, the modification time
-// and the first 64 KiB; and the total bytes of those files.
+// and the first 64 KiB; and the total bytes of those files. Files are read through `gate` (a
+// dataset's, for the server): one it refuses is its refusal.
 struct SourceIdentity {
   uint64_t hash = 0;
   uint64_t file_bytes = 0;
   bool operator==(const SourceIdentity&) const = default;
 };
-Result<SourceIdentity> ComputeSourceIdentity(const std::filesystem::path& input);
+Result<SourceIdentity> ComputeSourceIdentity(const std::filesystem::path& input,
+                                             const io::FileGate& gate = io::FileGate());
 
 // The build parameters a cache must match to be reused.
 struct CacheParams {

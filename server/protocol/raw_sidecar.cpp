@@ -195,21 +195,29 @@ Result<io::RawLayout> ParseRawSidecar(std::string_view json_text,
 }
 
 Result<io::RawLayout> LoadRawSidecar(const std::filesystem::path& sidecar_path) {
-  const std::string name = sidecar_path.string();
   try {
     OCTO_ASSIGN_OR_RETURN(const std::string text, ReadSmallFile(sidecar_path, kMaxRawSidecarBytes));
+    return ParseRawSidecarFile(text, sidecar_path);
+  } catch (const std::exception& e) {
+    return IoError(sidecar_path.string() + ": " + e.what());
+  }
+}
 
+Result<io::RawLayout> ParseRawSidecarFile(std::string_view json_text,
+                                          const std::filesystem::path& sidecar_path) {
+  try {
     // "scan.raw.json" describes "scan.raw".
     std::filesystem::path default_file;
     const std::string file_name = sidecar_path.filename().string();
     if (EndsWithIgnoreCase(file_name, ".json") && file_name.size() > 5) {
       default_file = file_name.substr(0, file_name.size() - 5);
     }
-    Result<io::RawLayout> layout = ParseNoThrow(text, sidecar_path.parent_path(), default_file);
-    if (!layout.ok()) return layout.status().WithContext(name);
+    Result<io::RawLayout> layout =
+        ParseNoThrow(json_text, sidecar_path.parent_path(), default_file);
+    if (!layout.ok()) return layout.status().WithContext(sidecar_path.string());
     return layout;
   } catch (const std::exception& e) {
-    return IoError(name + ": " + e.what());
+    return IoError(sidecar_path.string() + ": " + e.what());
   }
 }
 

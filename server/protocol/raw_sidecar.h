@@ -21,7 +21,7 @@
 namespace octoscope::protocol {
 
 // Sidecar files larger than this are refused unread.
-inline constexpr uint64_t kMaxRawSidecarBytes = uint64_t{1} << 20;
+inline constexpr uint64_t kMaxRawSidecarBytes = io::kMaxRawSidecarBytes;
 
 // Channels a sidecar may declare (a sanity limit against nonsense headers).
 inline constexpr int64_t kMaxRawSidecarChannels = 65536;
@@ -35,6 +35,9 @@ Result<io::RawLayout> ParseRawSidecar(std::string_view json_text,
 // against the sidecar's directory; a missing "file" defaults to the sidecar's name minus ".json"
 // ("scan.raw.json" describes "scan.raw"). Errors name the sidecar.
 Result<io::RawLayout> LoadRawSidecar(const std::filesystem::path& sidecar_path);
+// The same for the sidecar's text, already read (io::OpenOptions::parse_raw_sidecar).
+Result<io::RawLayout> ParseRawSidecarFile(std::string_view json_text,
+                                          const std::filesystem::path& sidecar_path);
 
 }  // namespace octoscope::protocol
 

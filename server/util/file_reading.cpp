@@ -46,21 +46,25 @@ Result<std::string> ReadSmallFile(const std::filesystem::path& path, uint64_t ma
     if (err == ENOENT || err == ENOTDIR) return NotFoundError(name + ": no such file");
     return IoError(name + ": cannot open: " + std::strerror(err));
   }
+  return ReadSmallOpenFile(fd.get(), name, max_bytes);
+}
+
+Result<std::string> ReadSmallOpenFile(int fd, std::string_view name, uint64_t max_bytes) {
   struct stat st;
-  if (::fstat(fd.get(), &st) != 0) {
+  if (::fstat(fd, &st) != 0) {
     const int err = errno;
-    return IoError(name + ": cannot stat: " + std::strerror(err));
+    return IoError(std::string(name) + ": cannot stat: " + std::strerror(err));
   }
-  if (!S_ISREG(st.st_mode)) return UnsupportedError(name + ": not a regular file");
+  if (!S_ISREG(st.st_mode)) return UnsupportedError(std::string(name) + ": not a regular file");
   const uint64_t size = static_cast<uint64_t>(st.st_size);
   if (size > max_bytes) {
-    return ResourceExhaustedError(name + ": " + std::to_string(size) +
+    return ResourceExhaustedError(std::string(name) + ": " + std::to_string(size) +
                                   " bytes, more than the limit of " + std::to_string(max_bytes) +
                                   " for this kind of file");
   }
   std::string text(static_cast<size_t>(size), '\0');
-  OCTO_RETURN_IF_ERROR(ReadFully(
-      fd.get(), 0, std::as_writable_bytes(std::span<char>(text.data(), text.size())), name));
+  OCTO_RETURN_IF_ERROR(
+      ReadFully(fd, 0, std::as_writable_bytes(std::span<char>(text.data(), text.size())), name));
   return text;
 }
 

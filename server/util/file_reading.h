@@ -41,6 +41,9 @@ Status ReadFully(int fd, uint64_t offset, std::span<std::byte> out,
 // The whole content of the regular file `path`. Errors: NotFound (no such file), Unsupported (not
 // a regular file), ResourceExhausted (larger than `max_bytes`, refused unread), IoError.
 Result<std::string> ReadSmallFile(const std::filesystem::path& path, uint64_t max_bytes);
+// The same for a file already open for reading as `fd` (the caller keeps and closes it); `name`
+// stands for it in messages.
+Result<std::string> ReadSmallOpenFile(int fd, std::string_view name, uint64_t max_bytes);
 
 }  // namespace octoscope
 

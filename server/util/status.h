@@ -26,6 +26,8 @@ enum class StatusCode {
   kUnavailable,        // Held by another process (a locked cache directory); may work later.
   // The object's state does not allow the operation (a slab for a finished acquisition).
   kFailedPrecondition,
+  // The caller may not touch the object (a file outside the folder a dataset may read).
+  kPermissionDenied,
 };
 
 std::string_view StatusCodeName(StatusCode code);
@@ -63,6 +65,7 @@ Status CancelledError(std::string message);
 Status InternalError(std::string message);
 Status UnavailableError(std::string message);
 Status FailedPreconditionError(std::string message);
+Status PermissionDeniedError(std::string message);
 
 // Returns from the enclosing function when `expr` (a Status) is not OK.
 #define OCTO_RETURN_IF_ERROR(expr)               \

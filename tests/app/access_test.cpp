@@ -1,8 +1,9 @@
 // `octoscope serve` on a shared machine, end to end with the real binary on a loopback port: users
 // from a users file see only the datasets under their folders (list, describe, histogram,
-// WebSocket open), admins see all, an expired token is refused, SIGHUP re-reads the users, and a
-// dataset nobody views is released after idle-timeout-s (RAM re-divided) and reopens from its
-// cache.
+// WebSocket open), admins see all, an expired token is refused, SIGHUP re-reads the users, a
+// dataset that refers to a file outside its own folder is refused with one message that tells
+// nothing about that file, and a dataset nobody views is released after idle-timeout-s (RAM
+// re-divided) and reopens from its cache.
 #include <gtest/gtest.h>
 #include <signal.h>
 
@@ -259,6 +260,105 @@ TEST_F(AccessTest, UsersSeeOnlyTheirFoldersAndAdminsSeeAll) {
   std::this_thread::sleep_for(std::chrono::milliseconds(300));
   EXPECT_EQ(Get("/api/datasets", kBob).status, 200);
   EXPECT_EQ(Get("/api/datasets", kAlice).status, 200);
+}
+
+// Issue 28: a folder grant admits a dataset by its own file; the files that file points to must
+// lie in its own folder too. Alice (granted data/alice) must not read bob's file through a
+// companion file naming ../bob/..., a reference by absolute path, or a slice symlinked into bob's
+// folder; the refusal reads the same whether bob's file exists or not.
+TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
+  const fs::path alice = dir_ / "data" / "alice", bob = dir_ / "data" / "bob";
+  auto ome = [](const std::string& uuid, const std::string& tiff_data) {
+    return "<?xml version=\"1.0\"?><OME xmlns=\"http://www.openmicroscopy.org/Schemas/OME/"
+           "2016-06\" UUID=\"" +
+           uuid +
+           "\"><Image ID=\"Image:0\"><Pixels ID=\"Pixels:0\" DimensionOrder=\"XYZCT\" "
+           "Type=\"uint16\" SizeX=\"24\" SizeY=\"16\" SizeZ=\"3\" SizeC=\"1\" SizeT=\"1\">" +
+           tiff_data + "</Pixels></Image></OME>";
+  };
+  auto names_file = [&](const std::string& file) {
+    return ome("urn:uuid:peek",
+               "<TiffData><UUID FileName=\"" + file + "\">urn:uuid:private</UUID></TiffData>");
+  };
+  testing::TiffFixtureSpec spec;
+  spec.width = 24;
+  spec.height = 16;
+  spec.pages = 3;
+  spec.descriptions = {ome("urn:uuid:private", "<TiffData/>")};
+  ASSERT_TRUE(testing::WriteTiffFixture(bob / "private.ome.tif", spec));
+  testing::TiffFixtureSpec plane = spec;
+  plane.pages = 1;
+  plane.descriptions.clear();
+  ASSERT_TRUE(testing::WriteTiffFixture(bob / "plane.tif", plane));
+
+  // Each refused dataset in two versions: bob's file exists, or it does not.
+  std::ofstream(alice / "peek.companion.ome") << names_file("../bob/private.ome.tif");
+  std::ofstream(alice / "ghost.companion.ome") << names_file("../bob/absent.ome.tif");
+  std::ofstream(alice / "absolute.companion.ome") << names_file((bob / "private.ome.tif").string());
+  std::ofstream(alice / "absghost.companion.ome") << names_file((bob / "absent.ome.tif").string());
+  for (const char* folder : {"slices", "ghostslices"}) {
+    fs::create_directories(alice / folder);
+    ASSERT_TRUE(testing::WriteTiffFixture(alice / folder / "z0.tif", plane));
+    ASSERT_TRUE(testing::WriteTiffFixture(alice / folder / "z1.tif", plane));
+  }
+  fs::create_symlink("../../bob/plane.tif", alice / "slices" / "z2.tif");
+  fs::create_symlink("../../bob/noplane.tif", alice / "ghostslices" / "z2.tif");
+  // A reference inside the own folder keeps working.
+  std::ofstream(alice / "inside.companion.ome") << names_file("alice.tif");
+  StartServer();
+
+  auto r = Get("/api/datasets", kAlice);
+  ASSERT_EQ(r.status, 200) << r.body;
+  std::map<std::string, json> listed;
+  for (const json& d : json::parse(r.body)) listed[d["name"].get<std::string>()] = d;
+  const std::string refusal = ": it refers to a file outside its own folder";
+  const std::vector<std::pair<std::string, std::string>> pairs = {
+      {"peek.companion.ome", "ghost.companion.ome"},
+      {"absolute.companion.ome", "absghost.companion.ome"},
+      {"slices", "ghostslices"}};
+  for (const auto& [exists, absent] : pairs) {
+    for (const std::string& name : {exists, absent}) {
+      ASSERT_EQ(listed.count(name), 1u) << name << " not listed: " << r.body;
+      const json& d = listed.at(name);
+      EXPECT_EQ(d["state"], "error") << d.dump();
+      EXPECT_EQ(d["error"], "permission denied: " + (alice / name).string() + refusal) << d.dump();
+      // Nothing of bob's file: no size, no channels.
+      EXPECT_EQ(d["format"], "unknown") << d.dump();
+      EXPECT_EQ(d["size"], json::array({1, 1, 1})) << d.dump();
+    }
+    // The WebSocket open: refused, and alike for both.
+    std::map<std::string, std::string> messages;
+    for (const std::string& name : {exists, absent}) {
+      WsClient ws;
+      const std::string id = listed.at(name)["id"];
+      auto opened = Open(ws, kAlice, id);
+      ASSERT_TRUE(opened.has_value()) << name;
+      EXPECT_EQ((*opened)["type"], "error") << opened->dump();
+      std::string message = (*opened).value("message", "");
+      EXPECT_EQ(message.find("bob"), std::string::npos) << message;
+      for (const std::string& own : {name, id}) {
+        for (size_t at; (at = message.find(own)) != std::string::npos;) {
+          message.replace(at, own.size(), "OWN");
+        }
+      }
+      messages[name] = message;
+    }
+    EXPECT_EQ(messages[exists], messages[absent]);
+  }
+
+  // A refused folder is still searched: its own slices are listed.
+  EXPECT_EQ(listed.count("z0.tif"), 1u) << r.body;
+
+  // The reference inside her folder opens; bob's file itself is still his (and the admins').
+  WsClient inside;
+  auto opened = Open(inside, kAlice, listed.at("inside.companion.ome")["id"]);
+  ASSERT_TRUE(opened.has_value());
+  EXPECT_EQ((*opened)["type"], "opened") << opened->dump();
+  const auto all = List(kAdmin);
+  WsClient admin;
+  auto bobs = Open(admin, kAdmin, all.at("private.ome.tif"));
+  ASSERT_TRUE(bobs.has_value());
+  EXPECT_EQ((*bobs)["type"], "opened") << bobs->dump();
 }
 
 TEST_F(AccessTest, IdleDatasetsAreReleasedRamIsRedividedAndTheyReopenFromTheirCache) {

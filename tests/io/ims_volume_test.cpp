@@ -3,7 +3,9 @@
 // Fletcher32 and scale-offset pipelines (read through HDF5), the LZ4 filter 32004, never-written
 // chunks, padded data arrays, attributes as character arrays and as strings, levels and time
 // points) read back voxel for voxel; the real PtK2 demo file equal to h5py's decode; bad files
-// refused with one clear error and nothing printed by HDF5.
+// refused with one clear error and nothing printed by HDF5; confined to its own folder (as the
+// server opens a dataset), a file reading other files (external links, external storage, virtual
+// datasets) refused alike whether or not those exist.
 #include "io/ims_volume.h"
 
 #include <gtest/gtest.h>
@@ -11,8 +13,12 @@
 
 #include <cstring>
 #include <fstream>
+#include <functional>
+#include <string>
 #include <thread>
+#include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/open_volume.h"
 #include "python_fixtures.h"
 #include "tiff_fixture.h"
@@ -251,6 +257,138 @@ TEST(Hdf5Signature, FoundAtZeroOrAfterAUserBlock) {
   EXPECT_FALSE(HasHdf5Signature(dir / "c"));
   EXPECT_FALSE(HasHdf5Signature(dir / "missing"));
   fs::remove_all(dir);
+}
+
+// --- confined to the file's own folder (issue 28), written with the HDF5 C API
+// ----------------------
+
+class ImarisConfinedTest : public testing::ConfinedTest {
+ protected:
+  static constexpr hsize_t kDims[3] = {2, 3, 4};  // z, y, x.
+
+  // A plain HDF5 file with the uint8 dataset "/Data" of kDims holding 0, 1, 2, …
+  static void WriteData(const fs::path& path) {
+    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    WriteValues(f, "Data", H5P_DEFAULT);
+    H5Fclose(f);
+  }
+  // An Imaris file whose channel 0 is made by `data` (given the "Channel 0" group), or whose
+  // /DataSet group is made by `dataset` (given the file).
+  static void WriteIms(const fs::path& path, const std::function<void(hid_t)>& data,
+                       const std::function<void(hid_t)>& dataset = nullptr) {
+    hid_t f = H5Fcreate(path.c_str(), H5F_ACC_TRUNC, H5P_DEFAULT, H5P_DEFAULT);
+    if (dataset) {
+      dataset(f);
+    } else {
+      hid_t lcpl = H5Pcreate(H5P_LINK_CREATE);
+      H5Pset_create_intermediate_group(lcpl, 1);
+      hid_t g = H5Gcreate2(f, "DataSet/ResolutionLevel 0/TimePoint 0/Channel 0", lcpl, H5P_DEFAULT,
+                           H5P_DEFAULT);
+      data(g);
+      H5Gclose(g);
+      H5Pclose(lcpl);
+    }
+    H5Fclose(f);
+  }
+  static void WriteValues(hid_t loc, const char* name, hid_t dcpl) {
+    hid_t space = H5Screate_simple(3, kDims, nullptr);
+    hid_t d = H5Dcreate2(loc, name, H5T_NATIVE_UINT8, space, H5P_DEFAULT, dcpl, H5P_DEFAULT);
+    std::vector<uint8_t> values(24);
+    for (size_t i = 0; i < values.size(); ++i) values[i] = static_cast<uint8_t>(i);
+    H5Dwrite(d, H5T_NATIVE_UINT8, H5S_ALL, H5S_ALL, H5P_DEFAULT, values.data());
+    H5Dclose(d);
+    H5Sclose(space);
+  }
+  // Plane `z` (4x3 uint8) of `source`.
+  static std::vector<std::byte> Plane(VolumeSource& source, int64_t z) {
+    std::vector<std::byte> out(source.SlabBytes(1));
+    const Status s = source.ReadSlab(0, z, 1, out);
+    EXPECT_TRUE(s.ok()) << s.ToString();
+    return out;
+  }
+};
+
+TEST_F(ImarisConfinedTest, AFileOfItsOwnReadsConfined) {
+  WriteIms(own_ / "ok.ims", [](hid_t g) { WriteValues(g, "Data", H5P_DEFAULT); });
+  auto source = OpenConfined(own_ / "ok.ims");
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ(static_cast<int>(Plane(**source, 1)[5]), 17);
+}
+
+TEST_F(ImarisConfinedTest, ExternalLinksAreRefusedAlikeWhetherOrNotTheirFileExists) {
+  WriteData(outside_ / "data.h5");
+  WriteIms(outside_ / "whole.ims", [](hid_t g) { WriteValues(g, "Data", H5P_DEFAULT); });
+  for (const char* name : {"data.h5", "none.h5"}) {
+    SCOPED_TRACE(name);
+    const std::string file = (outside_ / name).string();
+    const fs::path channel = own_ / "channel.ims";
+    WriteIms(channel, [&](hid_t g) {
+      H5Lcreate_external(file.c_str(), "/Data", g, "Data", H5P_DEFAULT, H5P_DEFAULT);
+    });
+    ExpectRefusal(OpenConfined(channel).status(), channel);
+    // The whole /DataSet group.
+    const std::string whole =
+        (outside_ / (std::string(name) == "data.h5" ? "whole.ims" : name)).string();
+    const fs::path group = own_ / "group.ims";
+    WriteIms(group, nullptr, [&](hid_t f) {
+      H5Lcreate_external(whole.c_str(), "/DataSet", f, "DataSet", H5P_DEFAULT, H5P_DEFAULT);
+    });
+    ExpectRefusal(OpenConfined(group).status(), group);
+  }
+  // The command-line tools follow the link.
+  auto open = OpenVolume(own_ / "channel.ims", {});
+  EXPECT_FALSE(open.ok());  // The last one written names none.h5.
+  WriteIms(own_ / "channel.ims", [&](hid_t g) {
+    H5Lcreate_external((outside_ / "data.h5").c_str(), "/Data", g, "Data", H5P_DEFAULT,
+                       H5P_DEFAULT);
+  });
+  open = OpenVolume(own_ / "channel.ims", {});
+  ASSERT_TRUE(open.ok()) << open.status().ToString();
+  EXPECT_EQ(static_cast<int>(Plane(**open, 1)[5]), 17);
+}
+
+TEST_F(ImarisConfinedTest, DataStoredInOtherFilesIsRefused) {
+  std::string bytes(24, '\0');
+  for (size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<char>(i);
+  std::ofstream(outside_ / "raw.bin", std::ios::binary) << bytes;
+  WriteData(outside_ / "source.h5");
+  // External storage: the dataset's bytes in a raw file.
+  const fs::path efl = own_ / "efl.ims";
+  WriteIms(efl, [&](hid_t g) {
+    hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+    H5Pset_external(dcpl, (outside_ / "raw.bin").c_str(), 0, 24);
+    hid_t space = H5Screate_simple(3, kDims, nullptr);
+    H5Dclose(H5Dcreate2(g, "Data", H5T_NATIVE_UINT8, space, H5P_DEFAULT, dcpl, H5P_DEFAULT));
+    H5Sclose(space);
+    H5Pclose(dcpl);
+  });
+  ExpectRefusal(OpenConfined(efl).status(), efl);
+  auto open = OpenVolume(efl, {});
+  ASSERT_TRUE(open.ok()) << open.status().ToString();
+  EXPECT_EQ(static_cast<int>(Plane(**open, 1)[5]), 17);
+  // A virtual dataset whose source is another file.
+  const fs::path vds = own_ / "vds.ims";
+  WriteIms(vds, [&](hid_t g) {
+    hid_t dcpl = H5Pcreate(H5P_DATASET_CREATE);
+    hid_t space = H5Screate_simple(3, kDims, nullptr);
+    hid_t source = H5Screate_simple(3, kDims, nullptr);
+    H5Pset_virtual(dcpl, space, (outside_ / "source.h5").c_str(), "/Data", source);
+    H5Dclose(H5Dcreate2(g, "Data", H5T_NATIVE_UINT8, space, H5P_DEFAULT, dcpl, H5P_DEFAULT));
+    H5Sclose(source);
+    H5Sclose(space);
+    H5Pclose(dcpl);
+  });
+  ExpectRefusal(OpenConfined(vds).status(), vds);
+}
+
+TEST_F(ImarisConfinedTest, AFileLinkedOutIsRefusedAlikeWhetherOrNotItExists) {
+  WriteIms(outside_ / "whole.ims", [](hid_t g) { WriteValues(g, "Data", H5P_DEFAULT); });
+  for (const char* target : {"../outside/whole.ims", "../outside/none.ims"}) {
+    const fs::path link = own_ / "link.ims";
+    fs::remove(link);
+    fs::create_symlink(target, link);
+    ExpectRefusal(OpenConfined(link).status(), link);
+  }
 }
 
 }  // namespace

@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/open_volume.h"
 #include "io/tiff_file.h"
 #include "io/tiff_fixture.h"
@@ -1158,6 +1159,67 @@ TEST_F(OmeTiffErrorTest, NotOme) {
   fs::path text = dir_ / "notes.companion.ome";
   std::ofstream(text) << "hello";
   ExpectError(Open(text).status(), StatusCode::kUnsupported, {text.string()});
+}
+
+// ---------------------------------------------------------------------------------------------
+// Confined to the dataset's own folder, as the server opens a dataset (issue 28): the files an
+// OME-XML document names must lie in the folder holding the file that was opened.
+
+class OmeTiffConfinedTest : public testing::ConfinedTest {
+ protected:
+  // Three uint16 pages, planes z 0..2, holding `description`.
+  static void WriteThree(const fs::path& path, const std::string& description) {
+    ASSERT_TRUE(WritePages(path, {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}}, description));
+  }
+  static std::string Pixels() { return PixelsAttrs("XYZCT", kW, kH, 3, 1, 1); }
+};
+
+TEST_F(OmeTiffConfinedTest, ReferencesOutOfTheFolderAreRefusedAlikeWhetherOrNotTheyExist) {
+  WriteThree(outside_ / "private.ome.tif", OmeDoc(Pixels(), "<TiffData/>", "urn:uuid:private"));
+  const std::vector<std::string> targets = {"../outside/private.ome.tif", "../outside/none.ome.tif",
+                                            (outside_ / "private.ome.tif").string(),
+                                            (outside_ / "none.ome.tif").string(),
+                                            "sub/../../outside/private.ome.tif"};
+  for (size_t i = 0; i < targets.size(); ++i) {
+    SCOPED_TRACE(targets[i]);
+    // A companion file whose TiffData names the file.
+    const fs::path companion = own_ / ("c" + std::to_string(i) + ".companion.ome");
+    std::ofstream(companion) << OmeDoc(
+        Pixels(),
+        "<TiffData><UUID FileName=\"" + targets[i] + "\">urn:uuid:private</UUID></TiffData>",
+        "urn:uuid:companion");
+    ExpectRefusal(OpenConfined(companion).status(), companion);
+    // A member whose BinaryOnly names it as the master.
+    const fs::path member = own_ / ("m" + std::to_string(i) + ".ome.tif");
+    WriteThree(member,
+               "<OME xmlns=\"http://www.openmicroscopy.org/Schemas/OME/2016-06\" "
+               "UUID=\"urn:uuid:m\"><BinaryOnly MetadataFile=\"" +
+                   targets[i] + "\" UUID=\"urn:uuid:private\"/></OME>");
+    ExpectRefusal(OpenConfined(member).status(), member);
+  }
+  // The command-line tools keep reading what the user named.
+  Result<std::unique_ptr<VolumeSource>> unconfined = OpenVolume(own_ / "c0.companion.ome", {});
+  ASSERT_TRUE(unconfined.ok()) << unconfined.status().ToString();
+  EXPECT_EQ((*unconfined)->info().size[2], 3);
+}
+
+TEST_F(OmeTiffConfinedTest, ReferencesInsideTheFolderStillWork) {
+  WriteMultiFile(own_, true);
+  for (const fs::path& path : {own_ / "set.companion.ome", own_ / "t0.ome.tif"}) {
+    for (int t = 0; t < kT; ++t) {
+      OpenOptions options;
+      options.time = t;
+      Result<std::unique_ptr<VolumeSource>> confined = OpenConfined(path, options);
+      ASSERT_TRUE(confined.ok()) << confined.status().ToString();
+      Result<std::unique_ptr<VolumeSource>> open = OpenVolume(path, options);
+      ASSERT_TRUE(open.ok()) << open.status().ToString();
+      for (int c = 0; c < kC; ++c) {
+        EXPECT_EQ(ReadSlab(**confined, c, 0, kZ), ReadSlab(**open, c, 0, kZ)) << path;
+      }
+    }
+  }
+  // A member in a sub-folder: its master is outside the folder holding it (open the master).
+  ExpectRefusal(OpenConfined(own_ / "sub" / "t1.ome.tif").status(), own_ / "sub" / "t1.ome.tif");
 }
 
 }  // namespace

@@ -10,8 +10,12 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <span>
+#include <string>
 #include <thread>
+#include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/open_volume.h"
 #include "io/volume_stats.h"
 #include "protocol/zarr_json.h"
@@ -385,6 +389,114 @@ TEST(NgffUnits, LengthUnitsToMicrometres) {
   EXPECT_EQ(MicrometresPerNgffUnit("um"), 1.0);
   EXPECT_FALSE(MicrometresPerNgffUnit("second").has_value());
   EXPECT_FALSE(MicrometresPerNgffUnit("").has_value());
+}
+
+// Confined to the store, as the server opens a dataset (issue 28): metadata, level folders and
+// chunks that are links out of the store are refused, whether or not their targets exist.
+class ZarrConfinedTest : public testing::ConfinedTest {
+ protected:
+  // A bare Zarr v2 array of 2 planes of 4x4 little-endian uint16, one uncompressed chunk per
+  // plane ("0.0.0", "1.0.0") whose samples are z * 100 + the sample's index.
+  static void WriteArray(const fs::path& dir) {
+    fs::create_directories(dir);
+    std::ofstream(dir / ".zarray") << R"({"zarr_format": 2, "shape": [2, 4, 4],
+        "chunks": [1, 4, 4], "dtype": "<u2", "compressor": null, "fill_value": 0,
+        "order": "C", "filters": null})";
+    for (int z = 0; z < 2; ++z) WriteChunk(dir / (std::to_string(z) + ".0.0"), z);
+  }
+  static void WriteChunk(const fs::path& path, int z) {
+    std::string bytes;
+    for (int i = 0; i < 16; ++i) {
+      const int v = z * 100 + i;
+      bytes.push_back(static_cast<char>(v & 0xff));
+      bytes.push_back(static_cast<char>(v >> 8));
+    }
+    std::ofstream(path, std::ios::binary) << bytes;
+  }
+  // A fresh array own_/`name` whose `entry` is a link to `target`.
+  fs::path ArrayWithLink(const std::string& name, const std::string& entry,
+                         const fs::path& target) {
+    const fs::path store = own_ / name;
+    fs::remove_all(store);
+    WriteArray(store);
+    fs::remove(store / entry);
+    fs::create_symlink(target, store / entry);
+    return store;
+  }
+  static std::vector<uint16_t> Plane(VolumeSource& source, int64_t z) {
+    std::vector<uint16_t> plane(16);
+    const Status s = source.ReadSlab(0, z, 1, std::as_writable_bytes(std::span(plane)));
+    EXPECT_TRUE(s.ok()) << s.ToString();
+    return plane;
+  }
+};
+
+TEST_F(ZarrConfinedTest, AChunkLinkedOutFailsItsReadAlikeWhetherOrNotItExists) {
+  WriteChunk(outside_ / "chunk", 7);
+  for (const fs::path& target : {outside_ / "chunk", outside_ / "none"}) {
+    SCOPED_TRACE(target);
+    const fs::path store = ArrayWithLink("a.zarr", "1.0.0", target);
+    auto source = OpenConfined(store, ZarrOptions());
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    EXPECT_EQ(Plane(**source, 0)[5], 5);
+    std::vector<std::byte> out((*source)->SlabBytes(1));
+    ExpectRefusal((*source)->ReadSlab(0, 1, 1, out), store);
+  }
+  // Inside the store: a missing chunk is still the fill value, a linked one is read.
+  const fs::path store = own_ / "b.zarr";
+  WriteArray(store);
+  fs::rename(store / "1.0.0", store / "plane1");
+  auto source = OpenConfined(store, ZarrOptions());
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  EXPECT_EQ(Plane(**source, 1)[5], 0);
+  fs::create_symlink("plane1", store / "1.0.0");
+  EXPECT_EQ(Plane(**source, 1)[5], 105);
+}
+
+TEST_F(ZarrConfinedTest, MetadataAndLevelsLinkedOutRefuseTheStoreAlikeWhetherOrNotTheyExist) {
+  WriteArray(outside_ / "array");
+  for (const fs::path& target : {outside_ / "array", outside_ / "none"}) {
+    SCOPED_TRACE(target);
+    // The array's own metadata.
+    const fs::path bare = ArrayWithLink("bare.zarr", ".zarray", target / ".zarray");
+    ExpectRefusal(OpenConfined(bare, ZarrOptions()).status(), bare);
+    // An image whose level is a link.
+    const fs::path image = own_ / "image.zarr";
+    fs::remove_all(image);
+    fs::create_directories(image);
+    std::ofstream(image / ".zgroup") << R"({"zarr_format": 2})";
+    std::ofstream(image / ".zattrs") << R"({"multiscales": [{"version": "0.4",
+        "axes": [{"name": "z", "type": "space"}, {"name": "y", "type": "space"},
+                 {"name": "x", "type": "space"}],
+        "datasets": [{"path": "0", "coordinateTransformations":
+                      [{"type": "scale", "scale": [1, 1, 1]}]}]}]})";
+    fs::create_directory_symlink(target, image / "0");
+    ExpectRefusal(OpenConfined(image, ZarrOptions()).status(), image);
+    // A metadata file that may or may not be there decides nothing either.
+    fs::remove(image / "0");
+    WriteArray(image / "0");
+    fs::create_symlink(target / "zarr.json", image / "zarr.json");
+    ExpectRefusal(OpenConfined(image, ZarrOptions()).status(), image);
+  }
+}
+
+TEST_F(ZarrConfinedTest, AnArrayOfAnImageDoesNotLookAboveItsOwnFolder) {
+  const fs::path image = own_ / "image.zarr";
+  fs::create_directories(image);
+  std::ofstream(image / ".zgroup") << R"({"zarr_format": 2})";
+  std::ofstream(image / ".zattrs") << R"({"multiscales": [{"version": "0.4",
+      "axes": [{"name": "z", "type": "space"}, {"name": "y", "type": "space"},
+               {"name": "x", "type": "space", "unit": "micrometer"}],
+      "datasets": [{"path": "0", "coordinateTransformations":
+                    [{"type": "scale", "scale": [1, 1, 2]}]}]}]})";
+  WriteArray(image / "0");
+  auto open = OpenVolume(image / "0", ZarrOptions());
+  ASSERT_TRUE(open.ok()) << open.status().ToString();
+  EXPECT_EQ((*open)->info().format, "ome-zarr");
+  auto confined = OpenConfined(image / "0", ZarrOptions());
+  ASSERT_TRUE(confined.ok()) << confined.status().ToString();
+  EXPECT_EQ((*confined)->info().format, "zarr");
+  EXPECT_EQ(Plane(**confined, 1), Plane(**open, 1));
 }
 
 }  // namespace

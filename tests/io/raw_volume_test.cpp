@@ -14,11 +14,16 @@
 #include <thread>
 #include <vector>
 
+#include "io/confined_fixture.h"
+#include "io/open_volume.h"
 #include "io/tiff_fixture.h"
+#include "protocol/raw_sidecar.h"
 #include "volume/data_type.h"
 
 namespace octoscope::io {
 namespace {
+
+namespace fs = std::filesystem;
 
 using volume::DataType;
 
@@ -384,6 +389,45 @@ TEST_F(RawVolumeTest, BadSlabRequestsAreRefused) {
     EXPECT_NE(st.message().find(layout.data_file.string()), std::string::npos) << st.ToString();
   }
   EXPECT_TRUE((*source)->ReadSlab(0, 1, 1, plane).ok());
+}
+
+// Confined to its own folder, as the server opens a dataset (issue 28): a sidecar naming a raw
+// file out of the folder, or that is itself a link out of it, is refused whether or not its
+// target exists.
+class RawConfinedTest : public testing::ConfinedTest {
+ protected:
+  static OpenOptions SidecarOptions() {
+    OpenOptions options;
+    options.parse_raw_sidecar = protocol::ParseRawSidecarFile;
+    return options;
+  }
+  static std::string Sidecar(const std::string& file) {
+    return R"({"file": ")" + file + R"(", "size": [4, 2, 1], "dtype": "uint8"})";
+  }
+};
+
+TEST_F(RawConfinedTest, DataFilesAndSidecarsOutOfTheFolderAreRefusedAlike) {
+  std::ofstream(outside_ / "x.raw") << "01234567";
+  std::ofstream(outside_ / "x.raw.json") << Sidecar("x.raw");
+  std::ofstream(own_ / "mine.raw") << "abcdefgh";
+  std::ofstream(own_ / "mine.json") << Sidecar("mine.raw");
+  auto mine = OpenConfined(own_ / "mine.json", SidecarOptions());
+  ASSERT_TRUE(mine.ok()) << mine.status().ToString();
+  for (const std::string& name : {std::string("x"), std::string("none")}) {
+    SCOPED_TRACE(name);
+    for (const std::string& file :
+         {"../outside/" + name + ".raw", (outside_ / (name + ".raw")).string()}) {
+      const fs::path sidecar = own_ / "a.json";
+      std::ofstream(sidecar) << Sidecar(file);
+      ExpectRefusal(OpenConfined(sidecar, SidecarOptions()).status(), sidecar);
+    }
+    // A raw file whose sidecar beside it is a link out.
+    const fs::path raw = own_ / "b.raw";
+    std::ofstream(raw) << "abcdefgh";
+    fs::remove(own_ / "b.raw.json");
+    fs::create_symlink("../outside/" + name + ".raw.json", own_ / "b.raw.json");
+    ExpectRefusal(OpenConfined(raw, SidecarOptions()).status(), raw);
+  }
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 #include <thread>
 #include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/tiff_fixture.h"
 
 namespace octoscope::io {
@@ -552,6 +553,109 @@ TEST_F(SliceFolderTest, ManySlicesThroughTheBoundedHandleCache) {
     });
   }
   for (std::thread& t : threads) t.join();
+}
+
+// Confined to the folder, as the server opens a dataset (issue 28): a slice that is a link out of
+// the folder refuses it, whether or not its target exists; links inside are followed.
+class SliceFolderConfinedTest : public testing::ConfinedTest {
+ protected:
+  // A single-page 16x8 uint16 slice whose values are `z` * 1000 + the default pattern.
+  static void WriteSlice(const std::filesystem::path& path, int z) {
+    ASSERT_TRUE(testing::WriteTiffFixture(
+        path, testing::TiffFixtureSpec{},
+        [z](uint32_t x, uint32_t y, int, int) { return z * 1000.0 + y * 16 + x; }));
+  }
+  // `prefix` followed by `n` (appended: GCC 12 warns falsely about "literal" + std::string).
+  static std::string Numbered(std::string prefix, size_t n, const char* suffix = "") {
+    prefix += std::to_string(n);
+    prefix += suffix;
+    return prefix;
+  }
+  static std::vector<std::byte> Read(io::VolumeSource& source, int channel, int64_t z) {
+    std::vector<std::byte> out(source.SlabBytes(1));
+    const Status status = source.ReadSlab(channel, z, 1, out);
+    EXPECT_TRUE(status.ok()) << status.ToString();
+    return out;
+  }
+};
+
+TEST_F(SliceFolderConfinedTest, ASliceLinkedOutRefusesTheFolderAlikeWhetherOrNotItExists) {
+  WriteSlice(outside_ / "plane.tif", 7);
+  const std::vector<std::filesystem::path> targets = {
+      "../../outside/plane.tif", "../../outside/none.tif", outside_ / "plane.tif",
+      outside_ / "none.tif"};
+  for (size_t i = 0; i < targets.size(); ++i) {
+    SCOPED_TRACE(targets[i]);
+    const std::filesystem::path flat = own_ / Numbered("flat", i);
+    std::filesystem::create_directories(flat);
+    WriteSlice(flat / "z0.tif", 0);
+    WriteSlice(flat / "z1.tif", 1);
+    std::filesystem::create_symlink(targets[i], flat / "z2.tif");
+    ExpectRefusal(OpenConfined(flat).status(), flat);
+    // The same in a channel sub-folder.
+    const std::filesystem::path channels = own_ / Numbered("channels", i);
+    for (const char* ch : {"ch0", "ch1"}) {
+      std::filesystem::create_directories(channels / ch);
+      WriteSlice(channels / ch / "z0.tif", 0);
+    }
+    const std::filesystem::path deeper =
+        targets[i].is_absolute() ? targets[i] : std::filesystem::path("..") / targets[i];
+    std::filesystem::create_symlink(deeper, channels / "ch1" / "z1.tif");
+    WriteSlice(channels / "ch0" / "z1.tif", 1);
+    ExpectRefusal(OpenConfined(channels).status(), channels);
+  }
+}
+
+TEST_F(SliceFolderConfinedTest, LinksInsideTheFolderAreFollowed) {
+  const std::filesystem::path folder = own_ / "planes";
+  std::filesystem::create_directories(folder / "store");
+  WriteSlice(folder / "store" / "a.tif", 0);
+  std::filesystem::create_symlink("store/a.tif", folder / "z0.tif");
+  WriteSlice(folder / "z1.tif", 1);
+  auto source = OpenConfined(folder);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  ASSERT_EQ((*source)->info().size[2], 2);
+  auto open = OpenSliceFolder(folder, OpenOptions{});
+  ASSERT_TRUE(open.ok());
+  for (int64_t z = 0; z < 2; ++z) EXPECT_EQ(Read(**source, 0, z), Read(**open, 0, z));
+}
+
+TEST_F(SliceFolderConfinedTest, AChannelFolderLinkedOutIsNotReadAndSaysSo) {
+  std::filesystem::create_directories(outside_ / "ch");
+  WriteSlice(outside_ / "ch" / "z0.tif", 5);
+  for (const char* target : {"../../outside/ch", "../../outside/none"}) {
+    SCOPED_TRACE(target);
+    const std::filesystem::path folder = own_ / "channels";
+    std::filesystem::remove_all(folder);
+    std::filesystem::create_directories(folder / "ch0");
+    WriteSlice(folder / "ch0" / "z0.tif", 0);
+    std::filesystem::create_directory_symlink(target, folder / "ch1");
+    auto source = OpenConfined(folder);
+    ASSERT_TRUE(source.ok()) << source.status().ToString();
+    ASSERT_EQ((*source)->info().channel_count(), 1);
+    EXPECT_EQ((*source)->info().channels[0].name, "ch0");
+    EXPECT_EQ((*source)->info().warnings,
+              std::vector<std::string>{folder.string() +
+                                       ": ch1 is not read as a channel: it leads outside the "
+                                       "folder"});
+  }
+}
+
+TEST_F(SliceFolderConfinedTest, ASliceReplacedByALinkOutAfterOpeningFailsItsRead) {
+  const std::filesystem::path folder = own_ / "many";
+  std::filesystem::create_directories(folder);
+  // More slices than are kept open: the last ones are reopened (through the gate) when read.
+  const int slices = kMaxOpenSliceFiles + 8;
+  for (int z = 0; z < slices; ++z) WriteSlice(folder / Numbered("z", z, ".tif"), z);
+  WriteSlice(outside_ / "plane.tif", 7);
+  auto source = OpenConfined(folder);
+  ASSERT_TRUE(source.ok()) << source.status().ToString();
+  const std::filesystem::path last = folder / Numbered("z", slices - 1, ".tif");
+  std::filesystem::remove(last);
+  std::filesystem::create_symlink("../../outside/plane.tif", last);
+  std::vector<std::byte> out((*source)->SlabBytes(1));
+  ExpectRefusal((*source)->ReadSlab(0, slices - 1, 1, out), folder);
+  EXPECT_TRUE((*source)->ReadSlab(0, 0, 1, out).ok());
 }
 
 }  // namespace

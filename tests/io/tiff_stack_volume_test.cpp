@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/open_volume.h"
 #include "io/tiff_fixture.h"
 
@@ -878,6 +879,25 @@ TEST(TiffStackVolumeTest, AbsurdSampleCountsAreRefusedWithTheChannelLimit) {
   Status st = OpenTiffStack(dir / "s65.tif", OpenOptions{}).status();
   EXPECT_EQ(st.code(), StatusCode::kResourceExhausted) << st.ToString();
   fs::remove_all(dir);
+}
+
+// Confined to its own folder, as the server opens a dataset (issue 28): a stack that is a link
+// into another folder is refused, whether or not its target exists; one within the folder opens.
+class TiffStackConfinedTest : public testing::ConfinedTest {};
+
+TEST_F(TiffStackConfinedTest, AStackLinkedOutIsRefusedAlikeWhetherOrNotItsTargetExists) {
+  ASSERT_TRUE(testing::WriteTiffFixture(outside_ / "stack.tif", testing::TiffFixtureSpec{}));
+  ASSERT_TRUE(testing::WriteTiffFixture(own_ / "mine.tif", testing::TiffFixtureSpec{}));
+  fs::create_symlink("mine.tif", own_ / "same.tif");
+  auto same = OpenConfined(own_ / "same.tif");
+  ASSERT_TRUE(same.ok()) << same.status().ToString();
+  for (const fs::path& target : {fs::path("../outside/stack.tif"), fs::path("../outside/none.tif"),
+                                 outside_ / "stack.tif", outside_ / "none.tif"}) {
+    const fs::path link = own_ / "link.tif";
+    fs::remove(link);
+    fs::create_symlink(target, link);
+    ExpectRefusal(OpenConfined(link).status(), link);
+  }
 }
 
 }  // namespace

@@ -12,11 +12,14 @@
 #include <string>
 #include <vector>
 
+#include "io/confined_fixture.h"
 #include "io/raw_volume.h"
 #include "io/tiff_fixture.h"
 
 namespace octoscope::io {
 namespace {
+
+namespace fs = std::filesystem;
 
 const std::filesystem::path kWalnutDir =
     std::filesystem::path(OCTOSCOPE_TESTDATA) / "voreen_walnut";
@@ -162,6 +165,31 @@ TEST_F(VoreenVvdFileTest, Errors) {
         << c.what << ": " << layout.status().message();
   }
   EXPECT_EQ(ReadVoreenVvd(dir_ / "missing.vvd").status().code(), StatusCode::kNotFound);
+}
+
+// Confined to its own folder, as the server opens a dataset (issue 28): RawData naming a file out
+// of the folder is refused, whether or not it exists.
+class VoreenConfinedTest : public testing::ConfinedTest {};
+
+TEST_F(VoreenConfinedTest, RawDataOutOfTheFolderIsRefusedAlikeWhetherOrNotItExists) {
+  std::ofstream(outside_ / "x.raw") << "0123456789abcdef";
+  auto vvd = [&](const std::string& file) {
+    const fs::path path = own_ / "v.vvd";
+    std::ofstream(path) << "<VoreenData version=\"1\"><Volumes><Volume><RawData filename=\"" +
+                               file +
+                               "\" format=\"uint8\" x=\"4\" y=\"2\" z=\"2\" />"
+                               "</Volume></Volumes></VoreenData>";
+    return path;
+  };
+  std::ofstream(own_ / "mine.raw") << "0123456789abcdef";
+  auto mine = OpenConfined(vvd("mine.raw"));
+  ASSERT_TRUE(mine.ok()) << mine.status().ToString();
+  for (const std::string& file :
+       {std::string("../outside/x.raw"), std::string("../outside/none.raw"),
+        (outside_ / "x.raw").string(), (outside_ / "none.raw").string()}) {
+    SCOPED_TRACE(file);
+    ExpectRefusal(OpenConfined(vvd(file)).status(), own_ / "v.vvd");
+  }
 }
 
 }  // namespace
