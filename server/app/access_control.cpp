@@ -366,10 +366,15 @@ fs::path AccessControl::CanonicalSource(const dataset::Dataset& dataset) const {
     auto it = sources_.find(dataset.id());
     if (it != sources_.end()) return it->second;
   }
+  // The folder holding it resolved, its own name not: whether a main file that is a link leads
+  // somewhere (and where) must not change who sees it listed (the file gate refuses such a link
+  // alike, whether its target exists or not).
   std::error_code ec;
-  fs::path canonical = dataset.source_path().empty()
-                           ? fs::path()
-                           : fs::weakly_canonical(fs::absolute(dataset.source_path(), ec), ec);
+  fs::path canonical;
+  if (!dataset.source_path().empty()) {
+    const fs::path absolute = fs::absolute(dataset.source_path(), ec).lexically_normal();
+    if (!ec) canonical = fs::weakly_canonical(absolute.parent_path(), ec) / absolute.filename();
+  }
   if (ec) canonical.clear();  // Unresolvable: under no folder.
   std::lock_guard<std::mutex> lock(mu_);
   sources_.emplace(dataset.id(), canonical);

@@ -29,6 +29,8 @@ int HttpStatusFor(const Status& status) {
       return 400;
     case StatusCode::kNotFound:
       return 404;
+    case StatusCode::kPermissionDenied:
+      return 403;
     case StatusCode::kFailedPrecondition:
       return 409;
     case StatusCode::kResourceExhausted:

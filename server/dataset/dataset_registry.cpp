@@ -110,7 +110,9 @@ void DatasetRegistry::ScanFolder(const fs::path& root, size_t root_index, const 
 
 bool DatasetRegistry::TryAdd(const fs::path& root, size_t root_index, const fs::path& path) {
   SourceSpec spec;
-  spec.id = ScanDatasetId(root_index, fs::relative(path, root));
+  // The path as scanned, links not followed: a link in one user's folder never takes the id of
+  // (and so hides) the dataset it points to.
+  spec.id = ScanDatasetId(root_index, path.lexically_relative(root));
   spec.path = path;
   spec.open = options_.open;
   spec.cache_root = options_.cache_root;

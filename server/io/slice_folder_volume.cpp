@@ -4,6 +4,7 @@
 #include <array>
 #include <cstdint>
 #include <map>
+#include <set>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -35,13 +36,15 @@ struct Listing {
   std::vector<std::filesystem::path> folders;
   // Links a confined gate does not let be looked at as channel sub-folders.
   std::vector<std::filesystem::path> outside_links;
+  // Links with a TIFF name that lead out of the folder: slices the folder may not read.
+  std::vector<std::filesystem::path> outside_tiffs;
 };
 
 // Lists `dir` through `gate`. Under a confined gate a symbolic link is classified through the gate
 // too, and only where it may matter: a link with a TIFF name is a slice (one leading out of the
-// folder refuses the folder, whether its target exists or not); with `want_folders`, when `dir`
-// holds no TIFF, any other link may be a channel sub-folder (one leading out of the folder is not
-// looked at, and listed in outside_links).
+// folder is listed in outside_tiffs, whether its target exists or not); with `want_folders`, when
+// `dir` holds no TIFF, any other link may be a channel sub-folder (one leading out of the folder is
+// not looked at, and listed in outside_links).
 Result<Listing> ListFolder(const std::filesystem::path& dir, const FileGate& gate,
                            bool want_folders) {
   Listing listing;
@@ -72,8 +75,8 @@ Result<Listing> ListFolder(const std::filesystem::path& dir, const FileGate& gat
     const bool tiff_name = IsTiffName(link.filename().string());
     if (!tiff_name && !(want_folders && listing.tiffs.empty())) break;
     Result<std::filesystem::file_type> linked = gate.Type(link);
-    if (!tiff_name && IsOutsideFolderError(linked.status())) {
-      listing.outside_links.push_back(link);
+    if (IsOutsideFolderError(linked.status())) {
+      (tiff_name ? listing.outside_tiffs : listing.outside_links).push_back(link);
       continue;
     }
     OCTO_ASSIGN_OR_RETURN(const std::filesystem::file_type type, std::move(linked));
@@ -88,7 +91,19 @@ Result<Listing> ListFolder(const std::filesystem::path& dir, const FileGate& gat
   };
   std::sort(listing.tiffs.begin(), listing.tiffs.end(), by_name);
   std::sort(listing.folders.begin(), listing.folders.end(), by_name);
+  std::sort(listing.outside_tiffs.begin(), listing.outside_tiffs.end(), by_name);
   return listing;
+}
+
+// The slices of a listing by name, those leading out included (they take their place in the
+// numbering; they are refused when opened).
+std::vector<std::filesystem::path> AllSlices(const Listing& listing) {
+  std::vector<std::filesystem::path> all = listing.tiffs;
+  all.insert(all.end(), listing.outside_tiffs.begin(), listing.outside_tiffs.end());
+  std::sort(all.begin(), all.end(), [](const auto& a, const auto& b) {
+    return NaturalLess(a.filename().string(), b.filename().string());
+  });
+  return all;
 }
 
 // Tries token position `p` as the channel token of `files` (whose stems are `tokens`). Returns
@@ -280,14 +295,21 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
                            std::to_string(options.time) + ")");
   }
 
+  // Slices that lead out of the folder refuse it — but only a folder that is a slice folder
+  // otherwise: one whose TIFFs all lead out is not one (a container of links, each of which is
+  // refused on its own), and the slices inside are checked first (a folder of multi-page files
+  // is no slice folder either, whatever else it holds).
   OCTO_ASSIGN_OR_RETURN(Listing top, ListFolder(dir, gate, true));
   std::vector<FolderChannel> channels;
+  std::set<std::filesystem::path> outside(top.outside_tiffs.begin(), top.outside_tiffs.end());
   if (!top.tiffs.empty()) {
-    OCTO_ASSIGN_OR_RETURN(channels, SplitFlatFolder(dir, top.tiffs));
+    OCTO_ASSIGN_OR_RETURN(channels, SplitFlatFolder(dir, AllSlices(top)));
   } else {
     for (const auto& sub : top.folders) {
       OCTO_ASSIGN_OR_RETURN(Listing inner, ListFolder(sub, gate, false));
-      if (!inner.tiffs.empty()) channels.push_back({sub.filename().string(), inner.tiffs});
+      if (inner.tiffs.empty()) continue;
+      outside.insert(inner.outside_tiffs.begin(), inner.outside_tiffs.end());
+      channels.push_back({sub.filename().string(), AllSlices(inner)});
     }
   }
   if (channels.empty()) {
@@ -311,9 +333,14 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
   // Handles to keep cached.
   std::vector<std::pair<std::filesystem::path, std::shared_ptr<TiffFile>>> warm;
   const size_t slices = channels[0].files.size();
+  bool refers_outside = false;
   for (size_t c = 0; c < channels.size(); ++c) {
     for (size_t z = 0; z < slices; ++z) {
       const std::filesystem::path& path = channels[c].files[z];
+      if (outside.count(path) != 0) {
+        refers_outside = true;
+        continue;
+      }
       OCTO_ASSIGN_OR_RETURN(std::unique_ptr<TiffFile> file,
                             TiffFile::Open(path, file_limits, gate));
       std::optional<int> index = SliceIfd(*file);
@@ -342,6 +369,8 @@ Result<std::unique_ptr<VolumeSource>> OpenSliceFolder(const std::filesystem::pat
       }
     }
   }
+
+  if (refers_outside) return OutsideFolderError();
 
   volume::VolumeInfo info;
   info.format = "slice-folder";

@@ -303,6 +303,9 @@ TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
   }
   fs::create_symlink("../../bob/plane.tif", alice / "slices" / "z2.tif");
   fs::create_symlink("../../bob/noplane.tif", alice / "ghostslices" / "z2.tif");
+  // A main file that is itself a link out: listed to alice alike, whether its target exists.
+  fs::create_symlink("../bob/private.ome.tif", alice / "link.ome.tif");
+  fs::create_symlink("../bob/absent.ome.tif", alice / "ghostlink.ome.tif");
   // A reference inside the own folder keeps working.
   std::ofstream(alice / "inside.companion.ome") << names_file("alice.tif");
   StartServer();
@@ -315,7 +318,8 @@ TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
   const std::vector<std::pair<std::string, std::string>> pairs = {
       {"peek.companion.ome", "ghost.companion.ome"},
       {"absolute.companion.ome", "absghost.companion.ome"},
-      {"slices", "ghostslices"}};
+      {"slices", "ghostslices"},
+      {"link.ome.tif", "ghostlink.ome.tif"}};
   for (const auto& [exists, absent] : pairs) {
     for (const std::string& name : {exists, absent}) {
       ASSERT_EQ(listed.count(name), 1u) << name << " not listed: " << r.body;
@@ -346,8 +350,10 @@ TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
     EXPECT_EQ(messages[exists], messages[absent]);
   }
 
-  // A refused folder is still searched: its own slices are listed.
+  // A refused folder is still searched: its own slices are listed. A folder that is no slice
+  // folder (alice's own, with its link among other files) is not listed as a dataset.
   EXPECT_EQ(listed.count("z0.tif"), 1u) << r.body;
+  EXPECT_EQ(listed.count("alice"), 0u) << r.body;
 
   // The reference inside her folder opens; bob's file itself is still his (and the admins').
   WsClient inside;
@@ -355,6 +361,9 @@ TEST_F(AccessTest, DatasetsReadNoFileOutsideTheirOwnFolder) {
   ASSERT_TRUE(opened.has_value());
   EXPECT_EQ((*opened)["type"], "opened") << opened->dump();
   const auto all = List(kAdmin);
+  // Links to bob's file in alice's folder have ids of their own: his file stays listed.
+  ASSERT_EQ(all.count("private.ome.tif"), 1u) << Get("/api/datasets", kAdmin).body;
+  EXPECT_NE(all.at("private.ome.tif"), listed.at("link.ome.tif")["id"]);
   WsClient admin;
   auto bobs = Open(admin, kAdmin, all.at("private.ome.tif"));
   ASSERT_TRUE(bobs.has_value());
