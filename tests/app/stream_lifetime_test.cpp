@@ -81,8 +81,9 @@ TEST_F(StreamLifetimeTest, IdleReleaseAndRestartKeepAStreamOpenUntilItsOwnerFini
   const std::string id = StreamTestVolume(v, /*send=*/false);
   ASSERT_FALSE(id.empty());
   // A second stream, created by alice, that stays unfinished throughout.
-  auto created = Fetch(server_.port(), http::verb::post, "/api/datasets?token=" + std::string(kAlice),
-                       {}, R"({"name":"alice run","size":[8,8,4],"channels":1,"dtype":"uint8",
+  auto created =
+      Fetch(server_.port(), http::verb::post, "/api/datasets?token=" + std::string(kAlice), {},
+            R"({"name":"alice run","size":[8,8,4],"channels":1,"dtype":"uint8",
                               "channel_names":["dapi"],"spacing":[0.25,0.25,1.5]})");
   ASSERT_EQ(created.status, 201) << created.body;
   const std::string other = json::parse(created.body)["id"];
