@@ -440,6 +440,9 @@ void Dataset::CloseLocked() {
     tree_.store(nullptr, std::memory_order_release);
     cache = std::move(cache_);
     flush_due_.reset();
+    // A stream's next checkpoint is its resume's business (a failed one above left the cache at
+    // the previous checkpoint, which the resume reports).
+    changed_since_checkpoint_ = false;
     if (kind_ == Kind::kFile && state_ == DatasetState::kBuilding) state_ = DatasetState::kPending;
     // A ready file whose histogram was still being counted: the next Open counts again.
   }

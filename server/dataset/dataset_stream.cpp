@@ -305,7 +305,7 @@ void Dataset::RunStreamTimer(std::stop_token stop) {
   while (!stop.stop_requested()) {
     const auto now = Clock::now();
     std::optional<Clock::time_point> checkpoint_due;
-    if (changed_since_checkpoint_ && !finished_) {
+    if (changed_since_checkpoint_ && !finished_ && cache_ != nullptr) {
       checkpoint_due = std::max(
           std::min(last_slab_ + checkpoint_quiet_, last_checkpoint_ + checkpoint_interval_),
           checkpoint_retry_);
@@ -315,10 +315,17 @@ void Dataset::RunStreamTimer(std::stop_token stop) {
     if (!flush && !checkpoint) {
       std::optional<Clock::time_point> next = flush_due_;
       if (checkpoint_due && (!next || *checkpoint_due < *next)) next = checkpoint_due;
+      // Woken early when a flush becomes due (a slab staged meanwhile) or the first change
+      // after a checkpoint arrives; the deadlines are then worked out again.
+      const std::optional<Clock::time_point> flush_before = flush_due_;
+      const bool changed_before = changed_since_checkpoint_;
+      auto news = [&] {
+        return flush_due_ != flush_before || changed_since_checkpoint_ != changed_before;
+      };
       if (next) {
-        cv_.wait_until(lock, stop, *next, [] { return false; });
+        cv_.wait_until(lock, stop, *next, news);
       } else {
-        cv_.wait(lock, stop, [&] { return flush_due_.has_value() || changed_since_checkpoint_; });
+        cv_.wait(lock, stop, news);
       }
       continue;
     }

@@ -168,5 +168,73 @@ TEST_F(StreamLifetimeTest, IdleReleaseAndRestartKeepAStreamOpenUntilItsOwnerFini
   PutSlab(id, 1, 6, 1, v.Planes(1, 6, 1), 409);
 }
 
+// SIGKILL: no shutdown, no checkpoint. The stream comes back at its last checkpoint (the one
+// its quiet time made), with what arrived later gone — the replaced plane its old self again —
+// and a warning naming the planes to send again; sent again, every voxel is right.
+TEST_F(StreamLifetimeTest, AKilledServerResumesAStreamFromItsLastCheckpoint) {
+  const TestVolume v;
+  const std::string id = StreamTestVolume(v, /*send=*/false);
+  ASSERT_FALSE(id.empty());
+  for (int c = 0; c < 2; ++c) PutSlab(id, c, 0, 10, v.Planes(c, 0, 10), 200);
+  // Quiet for longer than the stream's checkpoint_quiet (2 s): checkpointed.
+  std::this_thread::sleep_for(milliseconds(3000));
+  PutSlab(id, 0, 10, 5, v.Planes(0, 10, 5), 200);
+  PutSlab(id, 0, 3, 1, std::string(v.sx * v.sy * 2, '\xff'), 200);
+  EXPECT_EQ(DatasetJson(id)["planes_received"], 25);
+  server_.Kill();
+  ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY, ServeArgs(), (dir_ / "server.log.killed").string()))
+      << server_.error();
+
+  const json d = DatasetJson(id);
+  EXPECT_EQ(d["state"], "streaming");
+  EXPECT_EQ(d["planes_received"], 20);
+  ASSERT_EQ(d["warnings"].size(), 1u) << d.dump();
+  EXPECT_NE(d["warnings"][0].get<std::string>().find(
+                "send again every plane not stored: channel 0: z 10-19; channel 1: z 10-19"),
+            std::string::npos)
+      << d.dump();
+  const json histogram = Histogram(id);
+  EXPECT_EQ(histogram["channels"][0]["count"], 10 * v.sx * v.sy);
+  EXPECT_EQ(histogram["channels"][0]["max"], 3000);  // 65535 is gone with what came after.
+  PutSlab(id, 0, 10, v.sz - 10, v.Planes(0, 10, v.sz - 10), 200);
+  EXPECT_EQ(StoredMipError(id, v), 0);
+  auto finished =
+      Fetch(server_.port(), http::verb::post, Auth("/api/datasets/" + id + "/finish"), {}, "");
+  ASSERT_EQ(finished.status, 200) << finished.body;
+  EXPECT_EQ(json::parse(finished.body)["missing_planes"], v.sz - 10);
+}
+
+class DemoReleaseTest : public ServeFixture {
+ protected:
+  std::vector<std::string> ExtraArgs() const override {
+    return {"--demo", "--demo-size", "64,64,16", "--demo-rate", "4", "--idle-timeout-s", "1"};
+  }
+};
+
+// The demo streams on while nobody views it: an idle release never stops or finishes it.
+TEST_F(DemoReleaseTest, AnIdleReleaseNeverStopsTheDemo) {
+  const std::string demo = server_.dataset();
+  ASSERT_FALSE(demo.empty());
+  const TestVolume v;
+  const std::string other = StreamTestVolume(v, /*send=*/false);
+  WsClient ws;
+  ASSERT_TRUE(ConnectWs(ws));
+  ASSERT_TRUE(ws.Send(json{{"type", "hello"}, {"client", "demo_test"}, {"protocol", 1}}.dump()));
+  ASSERT_TRUE(ReadEvent(ws, "welcome").has_value());
+  for (const std::string& id : {demo, other}) {
+    ASSERT_TRUE(ws.Send(json{{"type", "open"}, {"dataset", id}}.dump()));
+    ASSERT_TRUE(ReadEvent(ws, "opened").has_value());
+  }
+  json d;
+  for (int i = 0; i < 300; ++i) {
+    d = DatasetJson(demo);
+    if (d["state"] != "streaming") break;
+    std::this_thread::sleep_for(milliseconds(50));
+  }
+  EXPECT_EQ(d["state"], "ready") << d.dump();
+  EXPECT_EQ(d["missing_planes"], 0) << d.dump();
+  EXPECT_EQ(d["planes_received"], 16 * 3);
+}
+
 }  // namespace
 }  // namespace octoscope::testing

@@ -1,22 +1,27 @@
 // An unfinished stream is never finished by anyone but its owner (issue 28): closing it (what a
 // DatasetHub release and a shutdown do) checkpoints it and frees its octree; the next slab, open
-// or finish resumes it with planes_received, the histogram and plane replacement exact.
+// or finish resumes it with planes_received, the histogram and plane replacement exact. A quiet
+// stream is checkpointed by its timer, a busy one is not released, and a checkpoint is never
+// served as a complete cache.
 #include <gtest/gtest.h>
 
-#include <algorithm>
 #include <chrono>
-#include <map>
-#include <utility>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <thread>
 #include <vector>
 
+#include "dataset/cache_setup.h"
 #include "dataset/dataset.h"
+#include "dataset/stream_checkpoint.h"
 #include "dataset/stream_test_volume.h"
-#include "octree/voxel_reader.h"
 
 namespace octoscope::dataset {
 namespace {
 
 using testing::Bytes;
+using testing::ExpectExactly;
 using testing::kChannels;
 using testing::kX;
 using testing::kY;
@@ -24,43 +29,6 @@ using testing::kZ;
 using testing::Planes;
 using testing::Spec;
 using StreamSuspendTest = testing::StreamTestRoot;
-
-// Planes [z0, z0 + nz) of channel c.
-struct PlaneRun {
-  int c;
-  int64_t z0, nz;
-};
-
-// The histogram and the stored voxels of `ds` are exactly those of the planes in `runs`.
-void ExpectExactly(const Dataset& ds, const std::vector<PlaneRun>& runs) {
-  std::map<uint16_t, uint64_t> direct[kChannels];
-  uint64_t planes = 0;
-  for (const PlaneRun& r : runs) {
-    for (uint16_t v : Planes(r.c, r.z0, r.nz)) ++direct[r.c][v];
-    planes += static_cast<uint64_t>(r.nz);
-  }
-  EXPECT_EQ(ds.status().planes_received, planes);
-  const Histogram h = ds.histogram();
-  ASSERT_EQ(h.channels(), kChannels);
-  for (int c = 0; c < kChannels; ++c) {
-    for (uint32_t v = 0; v < 65536; ++v) {
-      const auto it = direct[c].find(static_cast<uint16_t>(v));
-      ASSERT_EQ(h.counts(c)[v], it == direct[c].end() ? 0u : it->second) << c << " " << v;
-    }
-  }
-  ASSERT_NE(ds.octree(), nullptr);
-  for (const PlaneRun& r : runs) {
-    std::vector<uint16_t> got(static_cast<size_t>(kX * kY * r.nz));
-    const Status s = octree::ReadVoxels(*ds.octree(), r.c,
-                                        octree::Box{{0, 0, r.z0}, {kX, kY, r.z0 + r.nz}}, got);
-    ASSERT_TRUE(s.ok()) << s.ToString();
-    const std::vector<uint16_t> want = Planes(r.c, r.z0, r.nz);
-    const auto diff = std::mismatch(got.begin(), got.end(), want.begin());
-    EXPECT_TRUE(diff.first == got.end())
-        << "channel " << r.c << " planes from z " << r.z0 << ": voxel "
-        << (diff.first - got.begin()) << " is " << *diff.first << ", not " << *diff.second;
-  }
-}
 
 TEST_F(StreamSuspendTest, AClosedUnfinishedStreamResumesOnTheNextSlab) {
   auto created = Dataset::CreateStream(Spec(root_));
@@ -119,6 +87,65 @@ TEST_F(StreamSuspendTest, AClosedUnfinishedStreamResumesOnTheNextSlab) {
   }
   EXPECT_EQ(ds->AddSlab(0, 12, 1, Bytes(Planes(0, 12, 1)), true).code(),
             StatusCode::kFailedPrecondition);
+}
+
+}  // namespace
+}  // namespace octoscope::dataset
+
+namespace octoscope::dataset {
+namespace {
+
+using testing::Bytes;
+using testing::Planes;
+using testing::Spec;
+using StreamCheckpointTest = testing::StreamTestRoot;
+namespace fs = std::filesystem;
+
+TEST_F(StreamCheckpointTest, ABusyStreamStaysOpenAndAQuietOneIsCheckpointed) {
+  StreamSpec spec = Spec(root_);
+  spec.checkpoint_quiet = std::chrono::milliseconds(50);
+  auto created = Dataset::CreateStream(spec);
+  ASSERT_TRUE(created.ok()) << created.status().ToString();
+  std::shared_ptr<Dataset> ds = *created;
+  auto generation = [&] {
+    auto contents = octree::OctreeCache::Inspect(ds->cache_dir());
+    return contents.ok() ? contents->manifest.generation : 0;
+  };
+  EXPECT_EQ(generation(), 1u);  // Checkpointed empty at creation.
+
+  // Quiet for checkpoint_quiet after a slab: checkpointed by the stream's timer, with the plane.
+  ASSERT_TRUE(ds->AddSlab(1, 4, 1, Bytes(Planes(1, 4, 1)), false).ok());
+  for (int i = 0; i < 200 && generation() < 2; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  auto contents = octree::OctreeCache::Inspect(ds->cache_dir());
+  ASSERT_TRUE(contents.ok()) << contents.status().ToString();
+  EXPECT_EQ(contents->manifest.generation, 2u);
+  EXPECT_FALSE(contents->unclean);
+  auto progress = ParseStreamAttachments(contents->attachments, testing::kChannels, testing::kZ,
+                                         contents->manifest.source, ds->value_maps());
+  ASSERT_TRUE(progress.ok()) << progress.status().ToString();
+  EXPECT_EQ(progress->received[testing::kZ + 4], 1);
+  EXPECT_EQ(progress->histogram.total(1), uint64_t{testing::kX} * testing::kY);
+  EXPECT_TRUE(ds->status().open);
+
+  // A release leaves a stream that got a slab within `quiet` open; a quiet one is suspended.
+  ASSERT_TRUE(ds->AddSlab(0, 0, 1, Bytes(Planes(0, 0, 1)), true).ok());
+  EXPECT_EQ(ds->Release(std::chrono::hours(1)).code(), StatusCode::kFailedPrecondition);
+  EXPECT_TRUE(ds->status().open);
+  ASSERT_TRUE(ds->Release(std::chrono::milliseconds(0)).ok());
+  EXPECT_FALSE(ds->status().open);
+  EXPECT_EQ(ds->status().state, DatasetState::kStreaming);
+
+  // A suspended stream's cache is a checkpoint: never served as a complete cache.
+  const Status complete = OpenCompleteCache(ds->cache_dir(), 64 << 20).status();
+  EXPECT_EQ(complete.code(), StatusCode::kFailedPrecondition) << complete.ToString();
+  const std::string cmd = std::string(OCTOSCOPE_BINARY) + " render '" + ds->cache_dir().string() +
+                          "' --out '" + (root_ / "x.png").string() +
+                          "' --size 16x16 > /dev/null 2>&1";
+  EXPECT_NE(std::system(cmd.c_str()), 0) << cmd;
+  EXPECT_FALSE(fs::exists(root_ / "x.png"));
+  EXPECT_EQ(ds->status().planes_received, 2u);
 }
 
 }  // namespace

@@ -1,20 +1,23 @@
 // StreamTestVolume: the known voxels the dataset tests stream (a small 2-channel uint16 volume of
-// uneven size, neither homogeneous nor trivially compressible), their StreamSpec, and a fixture
-// owning a fresh temporary folder per test.
+// uneven size, neither homogeneous nor trivially compressible), their StreamSpec, a fixture
+// owning a fresh temporary folder per test, and a check that a stream holds exactly some planes.
 #ifndef OCTOSCOPE_TESTS_DATASET_STREAM_TEST_VOLUME_H_
 #define OCTOSCOPE_TESTS_DATASET_STREAM_TEST_VOLUME_H_
 
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <map>
 #include <span>
 #include <string>
 #include <vector>
 
 #include "dataset/dataset.h"
+#include "octree/voxel_reader.h"
 
 namespace octoscope::dataset::testing {
 
@@ -62,6 +65,43 @@ inline StreamSpec Spec(const std::filesystem::path& root) {
   spec.cache_root = root;
   spec.ram_bytes = 64 << 20;
   return spec;
+}
+
+// Planes [z0, z0 + nz) of channel c.
+struct PlaneRun {
+  int c;
+  int64_t z0, nz;
+};
+
+// The histogram and the stored voxels of `ds` are exactly those of the planes in `runs`.
+inline void ExpectExactly(const Dataset& ds, const std::vector<PlaneRun>& runs) {
+  std::map<uint16_t, uint64_t> direct[kChannels];
+  uint64_t planes = 0;
+  for (const PlaneRun& r : runs) {
+    for (uint16_t v : Planes(r.c, r.z0, r.nz)) ++direct[r.c][v];
+    planes += static_cast<uint64_t>(r.nz);
+  }
+  EXPECT_EQ(ds.status().planes_received, planes);
+  const Histogram h = ds.histogram();
+  ASSERT_EQ(h.channels(), kChannels);
+  for (int c = 0; c < kChannels; ++c) {
+    for (uint32_t v = 0; v < 65536; ++v) {
+      const auto it = direct[c].find(static_cast<uint16_t>(v));
+      ASSERT_EQ(h.counts(c)[v], it == direct[c].end() ? 0u : it->second) << c << " " << v;
+    }
+  }
+  ASSERT_NE(ds.octree(), nullptr);
+  for (const PlaneRun& r : runs) {
+    std::vector<uint16_t> got(static_cast<size_t>(kX * kY * r.nz));
+    const Status s = octree::ReadVoxels(*ds.octree(), r.c,
+                                        octree::Box{{0, 0, r.z0}, {kX, kY, r.z0 + r.nz}}, got);
+    ASSERT_TRUE(s.ok()) << s.ToString();
+    const std::vector<uint16_t> want = Planes(r.c, r.z0, r.nz);
+    const auto diff = std::mismatch(got.begin(), got.end(), want.begin());
+    EXPECT_TRUE(diff.first == got.end())
+        << "channel " << r.c << " planes from z " << r.z0 << ": voxel "
+        << (diff.first - got.begin()) << " is " << *diff.first << ", not " << *diff.second;
+  }
 }
 
 }  // namespace octoscope::dataset::testing
