@@ -660,7 +660,9 @@ Status Dataset::FinishLocked() {
     if (finished_) return Status::Ok();
     if (!ingest_ || !cache_) return FailedPreconditionError(name_ + ": the stream was closed");
   }
-  Status s = FlushIngest();
+  // Checkpointed first (staged planes inserted): the cache is complete only once all of it is
+  // in the pool, and until then the checkpoint is what a crash resumes from.
+  Status s = CheckpointLocked();
   if (s.ok()) s = WriteHistogramFile(cache_dir_, histogram_.Snapshot(), identity_);
   if (s.ok()) s = cache_->Commit();
   if (!s.ok()) {

@@ -30,7 +30,7 @@ constexpr char kPoolName[] = "octree.pool";
 constexpr char kNodesName[] = "octree.nodes";
 constexpr char kBuildingName[] = "BUILDING";
 constexpr char kLockName[] = "LOCK";
-constexpr char kUndoName[] = "octree.undo";
+constexpr char kShadowName[] = "octree.shadow";
 constexpr char kDirtyName[] = "DIRTY";
 constexpr char kCheckpointPrefix[] = "checkpoint-";
 constexpr char kMagic[] = "octoscope-octree-cache";
@@ -116,10 +116,22 @@ std::string DirtyText(uint64_t generation) {
   return "dirty after checkpoint " + std::to_string(generation) + "\n";
 }
 
-// Attachment names: [a-z]{1,32}, not "nodes" (the node table's file).
+// Attachment names: [a-z]{1,32}, not "nodes" or "shadow" (the checkpoint's own files).
 bool IsAttachmentName(std::string_view name) {
-  return !name.empty() && name.size() <= 32 && name != "nodes" &&
+  return !name.empty() && name.size() <= 32 && name != "nodes" && name != "shadow" &&
          std::all_of(name.begin(), name.end(), [](char c) { return c >= 'a' && c <= 'z'; });
+}
+
+// A checkpoint file whose MANIFEST gives its checksum; kCorrupt naming it when it is missing or
+// does not match.
+Result<std::string> ReadCheckpointFile(const fs::path& path, uint64_t checksum,
+                                       std::string_view what) {
+  auto bytes = ReadSmallFile(path, kMaxNodesBytes);
+  if (!bytes.ok() || Fnv1a64(*bytes) != checksum) {
+    return CorruptError(path.string() + ": missing or damaged (the checkpoint's " +
+                        std::string(what) + " does not match its MANIFEST)");
+  }
+  return bytes;
 }
 
 Status CheckBudget(uint64_t ram_bytes, uint64_t page_bytes) {
@@ -283,6 +295,7 @@ std::string CacheManifest::Serialize() const {
   out << "nodes_checksum " << Hex(nodes_checksum) << "\n";
   if (state == State::kCheckpoint) {
     out << "generation " << generation << "\n";
+    out << "shadow_map " << Hex(shadow_checksum) << "\n";
     for (const Attachment& a : attachments) {
       out << "attachment " << a.name << " " << Hex(a.checksum) << "\n";
     }
@@ -331,10 +344,12 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
         if (a.name == f[1]) return CorruptError("MANIFEST repeats attachment '" + a.name + "'");
       }
       m.attachments.push_back({std::string(f[1]), *checksum});
-    } else if (key == "source_hash" || key == "nodes_checksum") {
+    } else if (key == "source_hash" || key == "nodes_checksum" || key == "shadow_map") {
       auto v = f.size() == 2 ? ParseHex(f[1]) : std::nullopt;
       if (!v) return bad(lines[i]);
-      (key == "source_hash" ? m.source.hash : m.nodes_checksum) = *v;
+      (key == "source_hash"      ? m.source.hash
+       : key == "nodes_checksum" ? m.nodes_checksum
+                                 : m.shadow_checksum) = *v;
     } else if (key == "source_bytes" || key == "page_bytes") {
       auto v = f.size() == 2 ? integer(f[1], 0, INT64_MAX) : std::nullopt;
       if (!v) return bad(lines[i]);
@@ -397,10 +412,11 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
       m.mapping.value_range.size() != static_cast<size_t>(channels)) {
     return CorruptError("MANIFEST has value maps or ranges for another channel count");
   }
-  if (m.state == State::kCheckpoint && seen["generation"] == 0) {
-    return CorruptError("MANIFEST of a checkpoint lacks 'generation'");
+  if (m.state == State::kCheckpoint && (seen["generation"] == 0 || seen["shadow_map"] == 0)) {
+    return CorruptError("MANIFEST of a checkpoint lacks 'generation' or 'shadow_map'");
   }
-  if (m.state == State::kComplete && (seen["generation"] != 0 || !m.attachments.empty())) {
+  if (m.state == State::kComplete &&
+      (seen["generation"] != 0 || seen["shadow_map"] != 0 || !m.attachments.empty())) {
     return CorruptError("MANIFEST of a complete cache has checkpoint keys");
   }
   for (volume::ValueMap& map : m.mapping.value_maps) map.file_type = info.dtype;
@@ -546,6 +562,12 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
 Status OctreeCache::Commit() {
   // Bricks first: the node table refers to them, and the MANIFEST to both.
   OCTO_RETURN_IF_ERROR(octree_->Flush());
+  if (shadow_ != nullptr && shadow_->shadowed_pages() != 0) {
+    // Those pages are not in the pool yet; a Checkpoint puts them there safely.
+    return FailedPreconditionError(dir_.string() +
+                                   ": the build changed since its last checkpoint; checkpoint "
+                                   "it before committing");
+  }
   std::ostringstream nodes;
   OCTO_RETURN_IF_ERROR(octree_->Save(nodes));
   const std::string table = nodes.str();
@@ -559,9 +581,9 @@ Status OctreeCache::Commit() {
   manifest_ = std::move(complete);
   std::error_code ec;
   fs::remove(dir_ / kBuildingName, ec);
-  if (undo_ != nullptr) {
-    // A complete cache is never rolled back: the checkpoint's files have no use any more.
-    fs::remove(dir_ / kUndoName, ec);
+  if (shadow_ != nullptr) {
+    // A complete cache is never resumed: the checkpoint's files have no use any more.
+    fs::remove(dir_ / kShadowName, ec);
     fs::remove(dir_ / kDirtyName, ec);
     RemoveCheckpointFiles(0);
   }
@@ -602,7 +624,7 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::CreateResumable(const fs::path
   cache->dir_ = dir;
   OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kExclusive));
   // From here on the directory is ours alone: no stale MANIFEST may describe the new files.
-  for (const char* name : {kManifestName, kNodesName, kUndoName, kDirtyName}) {
+  for (const char* name : {kManifestName, kNodesName, kShadowName, kDirtyName}) {
     fs::remove(dir / name, ec);
   }
   cache->RemoveCheckpointFiles(0);
@@ -611,10 +633,10 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::CreateResumable(const fs::path
   OCTO_ASSIGN_OR_RETURN(std::unique_ptr<paging::PageStore> pool,
                         paging::OpenFilePageStore(dir / kPoolName, layout.page_bytes,
                                                   paging::OpenMode::kCreateTruncate));
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<paging::UndoLogPageStore> undo,
-                        paging::UndoLogPageStore::Create(std::move(pool), dir / kUndoName, 0));
-  cache->undo_ = undo.get();
-  cache->store_ = std::move(undo);
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<paging::ShadowPageStore> shadow,
+                        paging::ShadowPageStore::Create(std::move(pool), dir / kShadowName, 0));
+  cache->shadow_ = shadow.get();
+  cache->store_ = std::move(shadow);
   cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
   layout.options.value_range = mapping.value_range;
   OCTO_ASSIGN_OR_RETURN(cache->octree_,
@@ -628,17 +650,16 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::CreateResumable(const fs::path
 }
 
 Status OctreeCache::Checkpoint(const CheckpointAttachments& attachments) {
-  if (undo_ == nullptr || manifest_.state != CacheManifest::State::kCheckpoint) {
+  if (shadow_ == nullptr || manifest_.state != CacheManifest::State::kCheckpoint) {
     return FailedPreconditionError(dir_.string() + ": not a resumable build; no checkpoint");
   }
   const uint64_t generation = manifest_.generation + 1;
   CacheManifest next = manifest_;
   next.generation = generation;
   next.attachments.clear();
-  // 1. The pool as the node table will describe it (pages the previous checkpoint refers to are
-  // in the undo log before they are overwritten).
+  // 1. The pool and its shadow as the node table will describe them, durable.
   OCTO_RETURN_IF_ERROR(octree_->Flush());
-  // 2. The node table and the owner's files, under this generation's names.
+  // 2. The node table, the owner's files and the shadow's map, under this generation's names.
   std::ostringstream nodes;
   OCTO_RETURN_IF_ERROR(octree_->Save(nodes));
   const std::string table = nodes.str();
@@ -651,11 +672,18 @@ Status OctreeCache::Checkpoint(const CheckpointAttachments& attachments) {
     OCTO_RETURN_IF_ERROR(WriteFileDurably(CheckpointFile(dir_, generation, name), bytes));
     next.attachments.push_back({name, Fnv1a64(bytes)});
   }
+  const std::string map = shadow_->Freeze().Serialize();
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(CheckpointFile(dir_, generation, "shadow"), map));
+  next.shadow_checksum = Fnv1a64(map);
   // 3. The commit point: from now on Resume finds this generation.
   OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kManifestName, next.Serialize()));
   manifest_ = std::move(next);
-  // 4. The pool now holds exactly this checkpoint: protect all of it afresh.
-  OCTO_RETURN_IF_ERROR(undo_->Restart(generation));
+  // 4. The shadowed pages into the pool; from now on every page written so far is protected.
+  if (Status copied = shadow_->Apply(generation); !copied.ok()) {
+    std::lock_guard<std::mutex> lock(dirty_mu_);
+    copy_failed_ = true;
+    return copied.WithContext(dir_.string() + ": after checkpoint " + std::to_string(generation));
+  }
   {
     std::lock_guard<std::mutex> lock(dirty_mu_);
     dirty_ = false;
@@ -668,7 +696,12 @@ Status OctreeCache::Checkpoint(const CheckpointAttachments& attachments) {
 
 Status OctreeCache::MarkDirty() {
   std::lock_guard<std::mutex> lock(dirty_mu_);
-  if (dirty_ || undo_ == nullptr) return Status::Ok();
+  if (copy_failed_) {
+    return FailedPreconditionError(dir_.string() +
+                                   ": a checkpoint could not be completed; the cache takes no "
+                                   "changes until it is reopened");
+  }
+  if (dirty_ || shadow_ == nullptr) return Status::Ok();
   OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kDirtyName, DirtyText(manifest_.generation)));
   dirty_ = true;
   return Status::Ok();
@@ -683,13 +716,10 @@ Result<CacheContents> OctreeCache::Inspect(const fs::path& dir) {
   CacheContents contents;
   if (manifest->state == CacheManifest::State::kCheckpoint) {
     for (const CacheManifest::Attachment& a : manifest->attachments) {
-      const fs::path path = CheckpointFile(dir, manifest->generation, a.name);
-      auto bytes = ReadSmallFile(path, kMaxNodesBytes);
-      if (!bytes.ok() || Fnv1a64(*bytes) != a.checksum) {
-        return CorruptError(path.string() + ": missing or damaged (the checkpoint's " + a.name +
-                            " does not match its MANIFEST)");
-      }
-      contents.attachments.emplace(a.name, std::move(*bytes));
+      OCTO_ASSIGN_OR_RETURN(std::string bytes,
+                            ReadCheckpointFile(CheckpointFile(dir, manifest->generation, a.name),
+                                               a.checksum, a.name));
+      contents.attachments.emplace(a.name, std::move(bytes));
     }
     auto dirty = ReadSmallFile(dir / kDirtyName, 256);
     contents.unclean = dirty.ok() && *dirty == DirtyText(manifest->generation);
@@ -719,28 +749,32 @@ Result<ResumedCache> OctreeCache::Resume(const fs::path& dir, uint64_t ram_bytes
   }
   OCTO_RETURN_IF_ERROR(CheckBudget(ram_bytes, layout.page_bytes));
   const fs::path nodes_path = CheckpointFile(dir, manifest.generation, "nodes");
-  auto nodes = ReadSmallFile(nodes_path, kMaxNodesBytes);
-  if (!nodes.ok() || Fnv1a64(*nodes) != manifest.nodes_checksum) {
-    return CorruptError(nodes_path.string() +
-                        ": missing or damaged (the checkpoint's node table does not match its "
-                        "MANIFEST)");
-  }
+  OCTO_ASSIGN_OR_RETURN(std::string nodes,
+                        ReadCheckpointFile(nodes_path, manifest.nodes_checksum, "node table"));
+  const fs::path map_path = CheckpointFile(dir, manifest.generation, "shadow");
+  OCTO_ASSIGN_OR_RETURN(std::string map_bytes,
+                        ReadCheckpointFile(map_path, manifest.shadow_checksum, "shadow map"));
+  auto map = paging::ShadowMap::Parse(map_bytes);
+  if (!map.ok()) return map.status().WithContext(map_path.string());
   auto pool = paging::OpenFilePageStore(dir / kPoolName, layout.page_bytes,
                                         paging::OpenMode::kOpenExisting);
   if (!pool.ok()) {
     return CorruptError((dir / kPoolName).string() +
                         ": the checkpoint's pool cannot be opened: " + pool.status().message());
   }
-  // The pool exactly as the checkpoint left it, whatever happened to it since.
-  OCTO_ASSIGN_OR_RETURN(const uint64_t restored, paging::UndoLogPageStore::RollBack(
-                                                     **pool, dir / kUndoName, manifest.generation));
+  // The pool exactly as the checkpoint left it: its copy finished (should a crash have cut it
+  // short), and what was written after it dropped.
+  const fs::path shadow_path = dir / kShadowName;
+  OCTO_RETURN_IF_ERROR(paging::ShadowPageStore::Recover(**pool, shadow_path, *map).status());
+  const uint64_t dropped =
+      paging::ShadowPageStore::PagesWrittenSince(shadow_path, manifest.generation);
   OCTO_ASSIGN_OR_RETURN(
-      std::unique_ptr<paging::UndoLogPageStore> undo,
-      paging::UndoLogPageStore::Create(std::move(*pool), dir / kUndoName, manifest.generation));
-  cache->undo_ = undo.get();
-  cache->store_ = std::move(undo);
+      std::unique_ptr<paging::ShadowPageStore> shadow,
+      paging::ShadowPageStore::Create(std::move(*pool), shadow_path, manifest.generation));
+  cache->shadow_ = shadow.get();
+  cache->store_ = std::move(shadow);
   cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
-  std::istringstream in(*nodes);
+  std::istringstream in(nodes);
   auto octree = Octree::Load(in, cache->page_cache_.get());
   if (!octree.ok()) {
     return CorruptError(nodes_path.string() + ": " + octree.status().message());
@@ -754,8 +788,8 @@ Result<ResumedCache> OctreeCache::Resume(const fs::path& dir, uint64_t ram_bytes
   ResumedCache resumed;
   resumed.cache = std::move(cache);
   resumed.attachments = std::move(contents.attachments);
-  resumed.unclean = contents.unclean || restored > 0;
-  resumed.restored_pages = restored;
+  resumed.unclean = contents.unclean || dropped > 0;
+  resumed.dropped_pages = dropped;
   return resumed;
 }
 

@@ -14,17 +14,20 @@
 //
 // Checkpoints (a resumable build: a live stream, which may pause for days and outlive the
 // process): CreateResumable starts one; Checkpoint makes the build so far durable without
-// completing it — the pool flushed and fsynced, the node table and the owner's attachments (a
-// stream's received planes and histogram) as checkpoint-G.* files, then a MANIFEST with "state
-// checkpoint" and generation G, written last; Resume reopens the latest checkpoint exclusively for
-// further inserts. Between checkpoints the pool is modified in place (bricks rewritten, brick ids
-// reused), so a resumable cache's pool is a paging::UndoLogPageStore: every pool page the
-// checkpoint refers to is saved to octree.undo before it is first overwritten, and Resume rolls
-// the pool back to exactly the checkpoint. MarkDirty records (in DIRTY, durably) that the build
-// changes after checkpoint G; Resume and Inspect report a DIRTY of the current generation as an
-// unclean stop: whatever the owner added after the checkpoint is gone, and the checkpoint is what
-// it resumes from. A checkpoint is never a complete cache: Open refuses the directory (it is
-// neither served nor cleared) and only Resume or Commit (after Resume) go on with it.
+// completing it — the pool flushed and fsynced, the node table, the owner's attachments (a
+// stream's received planes and histogram) and the pool's shadow map as checkpoint-G.* files,
+// then a MANIFEST with "state checkpoint" and generation G, written last; Resume reopens the
+// latest checkpoint exclusively for further inserts. Between checkpoints the octree rewrites
+// bricks in place and reuses brick ids, so a resumable cache's pool is a
+// paging::ShadowPageStore: writes of the pages a checkpoint refers to go to octree.shadow until
+// the next checkpoint is durable, and are copied into the pool only then (a crash during the copy
+// is finished by Resume from the map stored with the checkpoint). So octree.pool never holds
+// anything newer than the latest checkpoint in a page that checkpoint uses, and a crash loses
+// only what came after it. MarkDirty records (in DIRTY, durably) that the build changes after
+// checkpoint G; Resume and Inspect report a DIRTY of the current generation as an unclean stop:
+// whatever the owner added after the checkpoint is gone, and the checkpoint is what it resumes
+// from. A checkpoint is never a complete cache: Open refuses the directory (it is neither served
+// nor cleared); only Resume goes on with it, and Commit (after a Checkpoint) completes it.
 //
 // Locking: an OctreeCache holds a lock on its directory for its whole lifetime: shared while it
 // serves a complete cache (several processes may), exclusive while it builds one (nobody else may
@@ -51,7 +54,7 @@
 #include "octree/octree.h"
 #include "paging/page_cache.h"
 #include "paging/page_store.h"
-#include "paging/undo_log_page_store.h"
+#include "paging/shadow_page_store.h"
 #include "util/result.h"
 #include "volume/value_map.h"
 #include "volume/volume_info.h"
@@ -100,6 +103,7 @@ struct CacheManifest {
   State state = State::kComplete;
   uint64_t generation = 0;              // Checkpoints: 1, 2, ...; 0 for complete caches.
   std::vector<Attachment> attachments;  // Checkpoints only, in the order given.
+  uint64_t shadow_checksum = 0;         // Checkpoints: FNV-1a 64 of checkpoint-G.shadow.
   SourceIdentity source;
   CacheParams params;
   ValueMapping mapping;
@@ -158,9 +162,9 @@ struct ResumedCache {
   std::unique_ptr<OctreeCache> cache;  // Holding the directory exclusively, ready for inserts.
   CheckpointAttachments attachments;   // As the checkpoint stored them (checksums verified).
   // The build changed after the checkpoint and was not checkpointed again (the process was
-  // killed or crashed): those changes are gone, the pool was rolled back to the checkpoint.
+  // killed or crashed): those changes are gone; the tree is the checkpoint's.
   bool unclean = false;
-  uint64_t restored_pages = 0;  // Pool pages the rollback put back.
+  uint64_t dropped_pages = 0;  // Pool pages written after the checkpoint (their writes are gone).
 };
 
 // What a cache directory holds, read without locking or opening anything (Inspect).
@@ -184,16 +188,17 @@ class OctreeCache {
       uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive);
   // A fresh resumable cache in `dir` (see "Checkpoints" above) for `source` + `params`, with
   // `mapping`: takes the directory exclusively (kUnavailable when another holder uses it), clears
-  // what it held, and starts an empty octree whose pool is undo-logged. Nothing is durable until
-  // the first Checkpoint.
+  // what it held, and starts an empty octree whose pool is shadowed. Nothing is durable until the
+  // first Checkpoint.
   static Result<std::unique_ptr<OctreeCache>> CreateResumable(const std::filesystem::path& dir,
                                                               const SourceIdentity& source,
                                                               const CacheParams& params,
                                                               uint64_t ram_bytes,
                                                               ValueMapping mapping);
   // Reopens the checkpoint in `dir` exclusively for further inserts, with a page cache of
-  // `ram_bytes`: rolls the pool back to the checkpoint (undo log), loads its node table and
-  // attachments, and continues with the next generation. Errors: kUnavailable while another
+  // `ram_bytes`: drops what was written after the checkpoint (the shadow; the pool itself still
+  // holds the checkpoint, a copy the checkpoint left unfinished is finished), loads its node table
+  // and attachments, and continues with the next generation. Errors: kUnavailable while another
   // holder uses the directory; kFailedPrecondition for a complete cache (finished: nothing to
   // resume); kCorrupt when there is no checkpoint or its files are damaged (naming the file).
   static Result<ResumedCache> Resume(const std::filesystem::path& dir, uint64_t ram_bytes);
@@ -215,12 +220,17 @@ class OctreeCache {
   // table, then the MANIFEST (both temp-then-rename + fsync, directory fsynced), removes BUILDING,
   // and then holds the directory's lock SHARED (CacheLock::MakeShared): the complete cache may be
   // served by other processes too.
-  // A resumable cache also drops its checkpoint files, undo log and DIRTY marker afterwards.
+  // A resumable cache must be checkpointed after its last change first (kFailedPrecondition
+  // otherwise: nothing is written); it drops its checkpoint files, shadow and DIRTY marker
+  // afterwards.
   Status Commit();
 
   // Resumable caches only (kFailedPrecondition otherwise). Checkpoint: makes the build so far
   // durable as checkpoint generation()+1 with `attachments` (see "Checkpoints" above); on an
-  // error the previous checkpoint stays the one Resume finds. REQUIRES: no insert in flight.
+  // error before its MANIFEST the previous checkpoint stays the one Resume finds. Should copying
+  // the shadow into the pool fail after the MANIFEST, the cache takes no more changes
+  // (MarkDirty fails) until it is reopened with Resume, which finishes the copy.
+  // REQUIRES: no insert in flight.
   Status Checkpoint(const CheckpointAttachments& attachments);
   // Records durably (once per checkpoint) that the build is about to change after the current
   // checkpoint; call it before the change. Thread-safe.
@@ -253,11 +263,12 @@ class OctreeCache {
   std::unique_ptr<paging::PageStore> store_;
   std::unique_ptr<paging::PageCache> page_cache_;
   std::unique_ptr<Octree> octree_;
-  // Resumable caches: the pool's undo log (owned by store_), and whether DIRTY was written for
-  // the current generation (guarded by dirty_mu_).
-  paging::UndoLogPageStore* undo_ = nullptr;
+  // Resumable caches: the pool's shadow (owned by store_); whether DIRTY was written for the
+  // current generation, and whether a checkpoint's copy failed (both guarded by dirty_mu_).
+  paging::ShadowPageStore* shadow_ = nullptr;
   std::mutex dirty_mu_;
   bool dirty_ = false;
+  bool copy_failed_ = false;
 };
 
 }  // namespace octoscope::octree

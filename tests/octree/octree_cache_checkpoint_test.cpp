@@ -2,7 +2,7 @@
 // checkpoint reopens as exactly the tree it saved and the build goes on to the same tree as a
 // one-shot build; a checkpoint is never served or cleared as a complete cache; and a crash after a
 // checkpoint — the pool rewritten in place, brick ids freed and reused since — resumes at exactly
-// the checkpoint (the undo log), reported as an unclean stop.
+// the checkpoint (the pool's shadow), reported as an unclean stop.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -101,7 +101,7 @@ TEST_F(OctreeCacheCheckpointTest, ResumeReopensTheCheckpointAndTheBuildGoesOn) {
   auto resumed = OctreeCache::Resume(dir_, kRam);
   ASSERT_TRUE(resumed.ok()) << resumed.status().ToString();
   EXPECT_FALSE(resumed->unclean);
-  EXPECT_EQ(resumed->restored_pages, 0u);
+  EXPECT_EQ(resumed->dropped_pages, 0u);
   EXPECT_EQ(resumed->attachments, inspected->attachments);
   OctreeCache& cache = *resumed->cache;
   ExpectSameTree(DumpTree(cache.octree()), saved, "resumed checkpoint");
@@ -109,11 +109,14 @@ TEST_F(OctreeCacheCheckpointTest, ResumeReopensTheCheckpointAndTheBuildGoesOn) {
   ASSERT_NO_FATAL_FAILURE(InsertBox(cache.octree(), src, 0, Slab(70, kSide)));
   const std::vector<NodeDump> reference = Reference(src);
   ExpectSameTree(DumpTree(cache.octree()), reference, "resumed build");
+  // Completed only from a checkpoint of the last change (until then the pool lacks it).
+  EXPECT_EQ(cache.Commit().code(), StatusCode::kFailedPrecondition);
+  ASSERT_TRUE(cache.Checkpoint({}).ok());
   ASSERT_TRUE(cache.Commit().ok());
   resumed->cache.reset();
   // Complete now: the checkpoint's files are gone and the cache is served as any other.
   EXPECT_FALSE(fs::exists(dir_ / "checkpoint-2.nodes"));
-  EXPECT_FALSE(fs::exists(dir_ / "octree.undo"));
+  EXPECT_FALSE(fs::exists(dir_ / "octree.shadow"));
   EXPECT_EQ(OctreeCache::Resume(dir_, kRam).status().code(), StatusCode::kFailedPrecondition);
   auto served = OctreeCache::Open(dir_, source_, params_, kRam, []() -> Result<ValueMapping> {
     return InternalError("a complete cache needs no mapping");
@@ -195,7 +198,7 @@ TEST_F(OctreeCacheCheckpointTest, ACrashAfterACheckpointResumesAtExactlyTheCheck
   auto resumed = OctreeCache::Resume(crashed, kRam);
   ASSERT_TRUE(resumed.ok()) << resumed.status().ToString();
   EXPECT_TRUE(resumed->unclean);
-  EXPECT_GE(resumed->restored_pages, 2u);  // Leaf pages and the root's page at least.
+  EXPECT_GE(resumed->dropped_pages, 2u);  // Leaf pages and the root's page at least.
   EXPECT_EQ(resumed->attachments.at("planes"), "64");
   ExpectSameTree(DumpTree(resumed->cache->octree()), saved, "after the crash");
   EXPECT_EQ(resumed->cache->octree().stats(), at_checkpoint);
@@ -208,7 +211,7 @@ TEST_F(OctreeCacheCheckpointTest, ACrashAfterACheckpointResumesAtExactlyTheCheck
   auto again = OctreeCache::Resume(crashed, kRam);
   ASSERT_TRUE(again.ok()) << again.status().ToString();
   EXPECT_FALSE(again->unclean);
-  EXPECT_EQ(again->restored_pages, 0u);
+  EXPECT_EQ(again->dropped_pages, 0u);
   ExpectSameTree(DumpTree(again->cache->octree()), Reference(src), "clean resume");
 }
 
