@@ -106,13 +106,19 @@ void FolderWatcher::ReadSidecar() {
   std::shared_ptr<Dataset> previous = registry_->FindWatchedStream(dir_);
   if (previous != nullptr) {
     const volume::VolumeInfo& info = previous->info();
-    if (info.size == request->size && info.channel_count() == request->channels &&
-        info.dtype == request->dtype) {
+    const DatasetStatus status = previous->status();
+    if (status.state == DatasetState::kError) {
+      // Its cache is lost; the folder still holds the planes.
+      Report("stream " + previous->id() + " cannot go on (" + status.error +
+             "); streaming the folder into a new dataset");
+    } else if (info.size == request->size && info.channel_count() == request->channels &&
+               info.dtype == request->dtype) {
       Resume(std::move(previous));
       return;
+    } else {
+      Report("the sidecar describes another acquisition than stream " + previous->id() +
+             "; streaming into a new dataset");
     }
-    Report("the sidecar describes another acquisition than stream " + previous->id() +
-           "; streaming into a new dataset");
   }
   auto created = registry_->CreateWatchedStream(*request, dir_);
   if (!created.ok()) {
@@ -134,9 +140,6 @@ void FolderWatcher::Resume(std::shared_ptr<Dataset> dataset) {
     finished_ = true;
     logger_->Log(LogLevel::kInfo,
                  "watch " + dir_.string() + ": dataset " + dataset_->id() + " is complete already");
-  } else if (status.state == DatasetState::kError) {
-    finished_ = true;
-    Report("dataset " + dataset_->id() + " cannot go on: " + status.error);
   } else {
     // Planes received before are not read again: their files are taken as ingested.
     already_received_ = dataset_->received_planes();

@@ -17,8 +17,9 @@
 // CreateWatchedStream). A watcher started on a folder whose stream is listed already (restored
 // after a restart) goes on with it when the sidecar describes the same volume (size, channels,
 // type): files of planes it received before are not read again (until they change), the others
-// are streamed in, and the acquisition is finished when it is complete. An idle release of the
-// stream never stops the watcher: the next plane resumes the stream.
+// are streamed in, and the acquisition is finished when it is complete (a stream whose cache was
+// lost, or of another shape, is replaced by a new one fed from the folder's files). An idle
+// release of the stream never stops the watcher: the next plane resumes the stream.
 //
 // Thread safety: Start and the destructor from one thread; the watcher polls on its own thread.
 #ifndef OCTOSCOPE_DATASET_FOLDER_WATCHER_H_
