@@ -530,12 +530,14 @@ Status Dataset::AddToOpenStream(int channel, int64_t z0, int64_t nz,
   // Durably "changed since the checkpoint" before anything changes (an unclean stop is then
   // recognised as one).
   OCTO_RETURN_IF_ERROR(cache->MarkDirty());
+  bool first_change = false;
   {
     std::lock_guard lock(mu_);
+    first_change = !changed_since_checkpoint_;
     changed_since_checkpoint_ = true;
     last_slab_ = Clock::now();
   }
-  cv_.notify_all();
+  if (first_change) cv_.notify_all();  // The timer schedules a checkpoint.
   const size_t first =
       static_cast<size_t>(channel) * static_cast<size_t>(info_.size[2]) + static_cast<size_t>(z0);
   const size_t count = static_cast<size_t>(nz);
@@ -595,12 +597,16 @@ Status Dataset::AddToOpenStream(int channel, int64_t z0, int64_t nz,
   }
   // 3. Visible now, or within the latency.
   if (status.ok() && wait_visible) status = FlushIngest();
+  bool flush_scheduled = false;
   {
     std::lock_guard lock(mu_);
     last_slab_ = Clock::now();
-    if (status.ok() && !wait_visible && !flush_due_) flush_due_ = Clock::now() + flush_latency_;
+    if (status.ok() && !wait_visible && !flush_due_) {
+      flush_due_ = last_slab_ + flush_latency_;
+      flush_scheduled = true;
+    }
   }
-  cv_.notify_all();
+  if (flush_scheduled) cv_.notify_all();
   RefreshCounters();
   return status;
 }
