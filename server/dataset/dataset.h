@@ -24,7 +24,7 @@
 // been quiet (no slab) for StreamSpec::checkpoint_quiet after a change, and at least every
 // checkpoint_interval while slabs keep arriving. A crash loses at most what arrived since the
 // last checkpoint; the stream then resumes from that checkpoint and its warnings say which planes
-// must be sent (again) — see docs/server.md, "Stream records".
+// must be sent (again) — see docs/server.md, "Streams live until their owner finishes them".
 //
 // Persistence: a stream with a record folder (StreamSpec::record_dir) keeps its record there
 // (stream_record.h): written at creation, at Finish and when a warning is added. RestoreStream
@@ -164,8 +164,8 @@ class Dataset {
   static std::shared_ptr<Dataset> ForSource(const SourceSpec& spec);
   // A streaming dataset in kStreaming with an empty octree in a fresh cache directory
   // cache_root / id. kInvalidArgument for a bad spec (sizes, channels, type, spacing, names,
-  // planes over kMaxStreamPlaneBytes); cache errors as OctreeCache::Open.
-  // The stream is checkpointed at once (an empty checkpoint) and its record written.
+  // planes over kMaxStreamPlaneBytes); cache errors as OctreeCache::CreateResumable. The stream
+  // is checkpointed at once (an empty checkpoint) and its record written.
   static Result<std::shared_ptr<Dataset>> CreateStream(const StreamSpec& spec);
   // A stream created before (its record), as its cache left it: suspended, listed with its
   // received planes, histogram and state (kStreaming from a checkpoint, kReady from a complete
@@ -202,8 +202,8 @@ class Dataset {
 
   // Makes the octree available: idempotent and non-blocking (the work runs on the dataset's
   // worker thread; OnChange / WaitFor tell when octree() is there). Reuses a complete matching
-  // cache, else builds one. Errors only for a dataset that cannot be opened at all (its file
-  // was unreadable when listed).
+  // cache, else builds one; a suspended stream is resumed. Errors only for a dataset that cannot
+  // be opened at all (its file was unreadable when listed, a stream's cache is lost).
   Status Open();
   // The octree, or null until Open succeeded (or after Close). Valid until Close.
   octree::Octree* octree() const { return tree_.load(std::memory_order_acquire); }

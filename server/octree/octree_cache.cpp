@@ -721,6 +721,10 @@ Result<CacheContents> OctreeCache::Inspect(const fs::path& dir) {
                                                a.checksum, a.name));
       contents.attachments.emplace(a.name, std::move(bytes));
     }
+    // The shadow map too: a checkpoint that cannot be resumed is reported now.
+    OCTO_RETURN_IF_ERROR(ReadCheckpointFile(CheckpointFile(dir, manifest->generation, "shadow"),
+                                            manifest->shadow_checksum, "shadow map")
+                             .status());
     auto dirty = ReadSmallFile(dir / kDirtyName, 256);
     contents.unclean = dirty.ok() && *dirty == DirtyText(manifest->generation);
   }

@@ -181,8 +181,12 @@ TEST(DatasetJsonTest, FuzzSeedsAreSafe) {
     for (StreamRequestKind kind : {StreamRequestKind::kApi, StreamRequestKind::kSidecar}) {
       (void)ParseStreamRequest(text, kind, entry.path().filename().string());
     }
+    auto record = ParseStreamRecord(text, entry.path().filename().string());
+    if (entry.path().filename() == "stream-record.json") {
+      EXPECT_TRUE(record.ok()) << record.status().ToString();  // A valid start for the fuzzer.
+    }
   }
-  EXPECT_GE(files, 2);
+  EXPECT_GE(files, 3);
 }
 
 }  // namespace
