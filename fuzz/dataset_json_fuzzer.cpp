@@ -1,7 +1,8 @@
 // libFuzzer harness over the JSON a client or an acquisition folder hands the dataset layer: the
 // body of POST /api/datasets and the sidecar of a watched folder (protocol::ParseStreamRequest,
-// both kinds), and the JSON an administrator hands the server: the `serve --config` file and the
-// users file (protocol::ParseServeConfig, ParseUsersFile). Nothing may crash, hang or allocate
+// both kinds), a stream record read back from the state folder (ParseStreamRecord), and the JSON
+// an administrator hands the server: the `serve --config` file and the users file
+// (protocol::ParseServeConfig, ParseUsersFile). Nothing may crash, hang or allocate
 // unboundedly: errors are fine. A parsed request must respect the documented limits.
 #include <cstddef>
 #include <cstdint>
@@ -23,6 +24,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     if (request->channels < 1 || request->channels > kMaxStreamChannels) std::abort();
     if (!request->channel_names.empty() &&
         request->channel_names.size() != static_cast<size_t>(request->channels)) {
+      std::abort();
+    }
+  }
+  if (auto record = ParseStreamRecord(text, "fuzz-input"); record.ok()) {
+    if (record->id.size() != 12 || record->cache.empty() ||
+        (record->missing_planes.has_value() && !record->finished) ||
+        record->warnings.size() > kMaxStreamRecordWarnings) {
       std::abort();
     }
   }

@@ -384,7 +384,7 @@ fs::path AccessControl::CanonicalSource(const dataset::Dataset& dataset) const {
 bool AccessControl::UserMayView(const User& user, const dataset::Dataset& dataset) const {
   if (user.admin) return true;
   if (dataset.id() == dataset::DemoDatasetId()) return true;
-  if (const std::optional<GrantRef> creator = CreatorOf(dataset.id())) {
+  if (const std::optional<GrantRef> creator = CreatorOf(dataset)) {
     if (*creator == GrantRef{GrantRef::Kind::kUser, IdOf(user)}) return true;
   }
   if (dataset.is_stream()) return false;
@@ -412,16 +412,11 @@ bool AccessControl::MayReadMetrics(const net::Principal& principal) {
   return principal.kind == net::Principal::Kind::kUser && principal.admin;
 }
 
-void AccessControl::RecordCreator(const std::string& dataset_id, const GrantRef& creator) {
-  std::lock_guard<std::mutex> lock(mu_);
-  creators_[dataset_id] = creator;
-}
-
-std::optional<GrantRef> AccessControl::CreatorOf(const std::string& dataset_id) const {
-  std::lock_guard<std::mutex> lock(mu_);
-  auto it = creators_.find(dataset_id);
-  if (it == creators_.end()) return std::nullopt;
-  return it->second;
+std::optional<GrantRef> AccessControl::CreatorOf(const dataset::Dataset& dataset) {
+  if (!dataset.is_stream() || dataset.creator().empty()) return std::nullopt;
+  auto creator = protocol::ParseGrantRef(dataset.creator());
+  if (!creator.ok()) return std::nullopt;  // Not a grant: nobody's.
+  return *creator;
 }
 
 std::optional<std::string> AccessControl::UserName(std::string_view id) const {

@@ -7,7 +7,8 @@
 //   - a user grant: the user is in the users table (by the stable id the user's name got) and
 //     not expired; it covers every dataset for an admin, else the datasets whose source lies
 //     under one of the user's folders (component-wise prefix of weakly_canonical paths), the
-//     demo, and the streams the user created;
+//     demo, and the streams the user created (the stream's Dataset::creator(), the creator's
+//     grant as text, kept in its record across restarts);
 //   - a share grant: the link is live (not revoked, not expired, its session not released); it
 //     covers the one dataset it was made for, while the grant of its session's owner does;
 //   - a view grant: the view link exists and has not expired; it covers its one dataset while
@@ -128,10 +129,8 @@ class AccessControl : public net::Authenticator, public session::GrantChecker {
   // Only users create streams; only admins read /metrics.
   static bool MayCreateStreams(const net::Principal& principal);
   static bool MayReadMetrics(const net::Principal& principal);
-  // The stream `dataset_id` was created by the user with grant `creator` (who then sees it).
-  void RecordCreator(const std::string& dataset_id, const protocol::GrantRef& creator);
-  // The creator recorded for a stream, if any.
-  std::optional<protocol::GrantRef> CreatorOf(const std::string& dataset_id) const;
+  // The grant a stream was created under (its Dataset::creator()), if any.
+  static std::optional<protocol::GrantRef> CreatorOf(const dataset::Dataset& dataset);
   // The name of the user whose id is `id`, nullopt when no user has it (any more).
   std::optional<std::string> UserName(std::string_view id) const;
 
@@ -153,7 +152,6 @@ class AccessControl : public net::Authenticator, public session::GrantChecker {
   ShareLookup share_by_id_;
   ViewLookup view_lookup_;
   DatasetFinder find_dataset_;
-  std::map<std::string, protocol::GrantRef, std::less<>> creators_;            // Stream id -> user.
   mutable std::map<std::string, std::filesystem::path, std::less<>> sources_;  // Id -> canonical.
 };
 

@@ -457,7 +457,7 @@ void ApiRoutes::CreateStream(const net::HttpRequest& request, const net::HttpRes
     for (const auto& dataset : registry_->List()) {
       unfinished += dataset->is_stream() &&
                     dataset->status().state == dataset::DatasetState::kStreaming &&
-                    options_.access->CreatorOf(dataset->id()) == creator;
+                    AccessControl::CreatorOf(*dataset) == creator;
     }
     if (unfinished >= options_.max_streams_per_user) {
       HttpResponse response = HttpResponse::Error(
@@ -469,11 +469,10 @@ void ApiRoutes::CreateStream(const net::HttpRequest& request, const net::HttpRes
   }
   // Creating the cache directory touches the disk: an upload worker does it.
   RunUpload(responder, [this, responder, spec = std::move(*parsed), creator] {
-    auto created = registry_->CreateStream(spec);
+    // The creator's grant, kept with the stream (its record) across restarts.
+    auto created =
+        registry_->CreateStream(spec, creator ? protocol::GrantRefText(*creator) : std::string());
     if (!created.ok()) return Respond(responder, ErrorResponse(created.status()));
-    if (options_.creators != nullptr && creator) {
-      options_.creators->RecordCreator((*created)->id(), *creator);
-    }
     Respond(responder, HttpResponse::Json(201, protocol::CreatedJson((*created)->id())));
   });
 }

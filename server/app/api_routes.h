@@ -39,8 +39,6 @@ struct ApiRoutesOptions {
   // Who sees what (REQUIRED in `serve`; null admits every principal to everything, for tests of
   // other routes).
   const AccessControl* access = nullptr;
-  // Records stream creators (the same object as `access`, mutable).
-  AccessControl* creators = nullptr;
   // Creating and finishing streams: at most this many at once (429 beyond). Slab uploads: their
   // bodies and decoded planes hold at most max_concurrent_uploads x max_upload_bytes of RAM.
   int max_concurrent_uploads = 8;

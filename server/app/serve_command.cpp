@@ -2,7 +2,8 @@
 // reads the flags (and --config), builds the render service, the dataset registry (with the demo
 // stream and watched folders), the shared session services and the HTTP/WebSocket server, prints
 // the URL to open, re-reads the users file on SIGHUP, and on SIGINT/SIGTERM shuts them down in
-// order: no new connections, sessions closed, streams finished and pages flushed, threads joined.
+// order: no new connections, sessions closed, unfinished streams checkpointed (never finished:
+// they go on after the restart) and pages flushed, threads joined.
 #include <ifaddrs.h>
 #include <netdb.h>
 #include <signal.h>
@@ -186,8 +187,12 @@ int RunServe(std::span<const std::string> args) {
   registry_options.cache_root = settings->cache_dir;
   registry_options.ram_bytes = settings->ram_mb << 20;
   registry_options.open = DefaultOpenOptions();
+  registry_options.state_dir = settings->state_dir;  // Stream records: streams outlive restarts.
   auto registry = dataset::DatasetRegistry::Create(registry_options);
   if (!registry.ok()) return Fail("datasets", registry.status());
+  for (const std::string& message : (*registry)->restore_messages()) {
+    logger.Log(LogLevel::kWarning, message);
+  }
   std::unique_ptr<dataset::DemoStream> demo;
   std::string open_dataset;
   if (settings->demo) {
@@ -316,7 +321,6 @@ int RunServe(std::span<const std::string> args) {
   ApiRoutesOptions routes_options;
   routes_options.version = kVersion;
   routes_options.access = access.get();
-  routes_options.creators = access.get();
   routes_options.views = views->get();
   routes_options.state_io = state_io.get();
   routes_options.link_base = &link_base;
@@ -350,7 +354,8 @@ int RunServe(std::span<const std::string> args) {
   }
   logger.Log(LogLevel::kInfo,
              std::string("stopping (") + (signal == SIGINT ? "SIGINT" : "SIGTERM") + ")");
-  // In order: no new connections and sessions closed; no new data; datasets flushed.
+  // In order: no new connections and sessions closed; no new data; datasets flushed, unfinished
+  // streams checkpointed.
   (*server)->Shutdown();
   sessions.reset();  // Parked sessions released.
   metrics.SetHttpCounts(nullptr);

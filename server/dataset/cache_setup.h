@@ -51,7 +51,8 @@ struct OpenedCache {
 
 // Opens the complete cache in `dir` with a page cache of `ram_bytes`, sharing the directory's
 // lock. kCorrupt when it is incomplete or damaged (it is never rebuilt or cleared here: the scan
-// it came from is not known to be available); kUnavailable while another process builds in it.
+// it came from is not known to be available); kFailedPrecondition when it holds the checkpoint of
+// a stream that has not finished; kUnavailable while another process builds in it.
 Result<OpenedCache> OpenCompleteCache(const std::filesystem::path& dir, uint64_t ram_bytes);
 
 }  // namespace octoscope::dataset

@@ -21,75 +21,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr size_t kMaxNameBytes = 256;
-constexpr int64_t kMaxAxis = 65536;
-constexpr int kMaxChannels = 64;
-constexpr double kMaxSpacingUm = 1e6;
-
-// A stream's identity in its cache MANIFEST: no file backs it, so a nonce makes every stream's
-// cache its own (a directory reused by a later stream of the same id is rebuilt, never served).
-octree::SourceIdentity StreamIdentity(const std::string& id) {
-  std::random_device random;
-  const uint64_t nonce = (static_cast<uint64_t>(random()) << 32) ^ random();
-  octree::SourceIdentity identity;
-  identity.hash = Fnv1a64("octoscope-stream:" + id + ":" + std::to_string(nonce));
-  identity.file_bytes = 0;
-  return identity;
-}
-
-Status CheckStreamSpec(const StreamSpec& spec) {
-  auto bad = [&](const std::string& what) {
-    return InvalidArgumentError("stream " + spec.id + ": " + what);
-  };
-  if (!IsValidDatasetId(spec.id)) return InvalidArgumentError("stream id must be [a-z0-9]{12}");
-  if (spec.name.size() > kMaxNameBytes) return bad("name longer than 256 bytes");
-  for (int a = 0; a < 3; ++a) {
-    if (spec.size[a] < 1 || spec.size[a] > kMaxAxis) {
-      return bad("size[" + std::to_string(a) + "] is " + std::to_string(spec.size[a]) +
-                 ", must be in 1..65536");
-    }
-    if (!std::isfinite(spec.spacing_um[a]) || !(spec.spacing_um[a] > 0) ||
-        spec.spacing_um[a] > kMaxSpacingUm) {
-      return bad("spacing[" + std::to_string(a) + "] must be in (0, 1e6] µm");
-    }
-  }
-  if (spec.channels < 1 || spec.channels > kMaxChannels) {
-    return bad(std::to_string(spec.channels) + " channels, must be 1..64");
-  }
-  if (volume::BytesPerSample(spec.dtype) > 2 || volume::IsFloat(spec.dtype)) {
-    return bad("dtype " + std::string(volume::NumpyName(spec.dtype)) +
-               ", must be uint8, uint16, int8 or int16");
-  }
-  if (!spec.channel_names.empty() &&
-      spec.channel_names.size() != static_cast<size_t>(spec.channels)) {
-    return bad(std::to_string(spec.channel_names.size()) + " channel names for " +
-               std::to_string(spec.channels) + " channels");
-  }
-  for (const std::string& n : spec.channel_names) {
-    if (n.size() > kMaxNameBytes) return bad("a channel name is longer than 256 bytes");
-  }
-  const uint64_t plane = static_cast<uint64_t>(spec.size[0]) * static_cast<uint64_t>(spec.size[1]) *
-                         volume::BytesPerSample(spec.dtype);
-  if (plane > kMaxStreamPlaneBytes) {
-    return bad("a plane of " + std::to_string(plane >> 20) + " MiB is more than the " +
-               std::to_string(kMaxStreamPlaneBytes >> 20) + " MiB a stream accepts");
-  }
-  if (spec.cache_root.empty()) return bad("no cache directory");
-  if (spec.flush_latency.count() < 0) return bad("negative flush latency");
-  return Status::Ok();
-}
-
-// Samples of `data` converted from the file type (native order) to the stored type; `scratch`
-// holds them unless no conversion is needed.
-std::span<const std::byte> ToStored(const volume::ValueMap& map, std::span<const std::byte> data,
-                                    std::vector<std::byte>& scratch) {
-  if (map.file_type == map.stored_type && map.offset == 0 && map.scale == 1) return data;
-  const size_t samples = data.size() / volume::BytesPerSample(map.file_type);
-  scratch.resize(samples * volume::BytesPerSample(map.stored_type));
-  volume::ConvertToStored(map, data, scratch);
-  return scratch;
-}
-
 }  // namespace
 
 std::string_view StateName(DatasetState state) {
@@ -172,64 +103,6 @@ std::shared_ptr<Dataset> Dataset::ForSource(const SourceSpec& spec) {
   return d;
 }
 
-Result<std::shared_ptr<Dataset>> Dataset::CreateStream(const StreamSpec& spec) {
-  OCTO_RETURN_IF_ERROR(CheckStreamSpec(spec));
-  volume::VolumeInfo info;
-  info.format = "stream";
-  info.size = spec.size;
-  info.dtype = spec.dtype;
-  for (int c = 0; c < spec.channels; ++c) {
-    info.channels.push_back(
-        {spec.channel_names.empty() ? std::string() : spec.channel_names[c], std::nullopt});
-  }
-  for (int a = 0; a < 3; ++a) info.spacing_um[a] = spec.spacing_um[a];
-  OCTO_RETURN_IF_ERROR(info.Validate());
-
-  Identity identity;
-  identity.id = spec.id;
-  identity.name = spec.name.empty() ? "stream " + spec.id : spec.name;
-  identity.cache_dir = spec.cache_root / spec.id;
-  std::shared_ptr<Dataset> d(new Dataset(Kind::kStream, std::move(identity), info));
-  d->flush_latency_ = spec.flush_latency;
-  d->ram_bytes_ = spec.ram_bytes;
-  d->identity_ = StreamIdentity(spec.id);
-
-  // A fresh cache (the nonce identity never matches what a directory holds), built into.
-  octree::CacheParams params;
-  params.info = info;
-  params.brick_size = BrickSizeFor(info, {0, 0, 0});
-  params.threshold = 0;
-  const octree::BuildBudget budget = BuildBudgetFor(info, params.brick_size, spec.ram_bytes);
-  const octree::ValueMapping mapping = FixedMapping(info);
-  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<octree::OctreeCache> cache,
-                        octree::OctreeCache::Open(d->cache_dir_, d->identity_, params,
-                                                  budget.page_bytes, [&] { return mapping; }));
-  std::error_code ec;
-  fs::remove(d->cache_dir_ / kHistogramFile, ec);
-  const unsigned hardware = std::max(1u, std::thread::hardware_concurrency());
-  d->insert_pool_ = std::make_unique<WorkerPool>(static_cast<int>(std::min(hardware, 4u)));
-  octree::IngestOptions ingest;
-  ingest.staging_bytes = budget.staging_bytes;
-  ingest.scratch_dir = d->cache_dir_;
-  ingest.workers = d->insert_pool_.get();
-  OCTO_ASSIGN_OR_RETURN(d->ingest_, octree::SlabIngest::Create(&cache->octree(), ingest));
-  d->received_.assign(static_cast<size_t>(info.size[2]) * info.channel_count(), 0);
-  d->histogram_.Reset(mapping.value_maps);
-  {
-    std::lock_guard lock(d->mu_);
-    d->maps_ = mapping.value_maps;
-    d->state_ = DatasetState::kStreaming;
-  }
-  d->Publish(std::move(cache), budget.slab_bytes + budget.staging_bytes);
-  try {
-    d->worker_ = std::jthread([raw = d.get()](std::stop_token stop) { raw->RunFlushTimer(stop); });
-  } catch (const std::system_error& e) {
-    return ResourceExhaustedError("stream " + spec.id +
-                                  ": cannot start its flush timer: " + e.what());
-  }
-  return d;
-}
-
 std::array<double, 3> Dataset::spacing_um() const {
   std::array<double, 3> s{1, 1, 1};
   for (int a = 0; a < 3; ++a) {
@@ -249,6 +122,7 @@ DatasetStatus Dataset::status() const {
   s.missing_planes = missing_planes_;
   s.histogram_complete = histogram_complete_;
   s.error = error_;
+  s.warnings = warnings_;
   s.cache_dir = cache_dir_;
   return s;
 }
@@ -347,11 +221,13 @@ Status Dataset::Open() {
     if (!header_error_.empty()) {
       return FailedPreconditionError(name_ + ": cannot be opened: " + header_error_);
     }
+    if (!restore_error_.empty()) return FailedPreconditionError(name_ + ": " + restore_error_);
     if (worker_active_ || tree_.load() != nullptr) return Status::Ok();
-    if (kind_ == Kind::kStream && !finished_) {
-      return FailedPreconditionError(name_ + ": the stream was closed before it finished");
-    }
-    state_ = kind_ == Kind::kStream ? DatasetState::kReady : DatasetState::kBuilding;
+    if (kind_ == Kind::kFile) {
+      state_ = DatasetState::kBuilding;
+    } else if (finished_) {
+      state_ = DatasetState::kReady;
+    }  // A suspended stream stays kStreaming while it resumes.
     error_.clear();
     worker_active_ = true;
   }
@@ -375,7 +251,18 @@ Status Dataset::Open() {
 void Dataset::RunOpen(std::stop_token stop) {
   Status s;
   try {
-    s = kind_ == Kind::kStream ? ReopenStream(stop) : OpenOrBuild(stop);
+    bool finished = false;
+    {
+      std::lock_guard lock(mu_);
+      finished = finished_;
+    }
+    if (kind_ == Kind::kFile) {
+      s = OpenOrBuild(stop);
+    } else if (finished) {
+      s = ReopenStream(stop);
+    } else {
+      s = stop.stop_requested() ? CancelledError(name_ + ": not resumed") : ResumeStream();
+    }
   } catch (const std::exception& e) {
     s = ResourceExhaustedError(name_ + ": " + e.what());
   } catch (...) {
@@ -510,233 +397,6 @@ void Dataset::LoadOrCountHistogram(const octree::SourceIdentity& identity, std::
   Notify();
 }
 
-// ---------------------------------------------------------------------------------------------
-// Streaming.
-
-Status Dataset::CheckSlab(int channel, int64_t z0, int64_t nz) const {
-  if (kind_ != Kind::kStream) {
-    return FailedPreconditionError(name_ + ": not a streaming dataset; slabs cannot be added");
-  }
-  if (channel < 0 || channel >= info_.channel_count()) {
-    return OutOfRangeError(name_ + ": channel " + std::to_string(channel) + " of " +
-                           std::to_string(info_.channel_count()));
-  }
-  if (nz < 1 || z0 < 0 || z0 > info_.size[2] - nz) {
-    return OutOfRangeError(name_ + ": planes [" + std::to_string(z0) + ", " + std::to_string(z0) +
-                           "+" + std::to_string(nz) + ") outside [0, " +
-                           std::to_string(info_.size[2]) + ")");
-  }
-  return Status::Ok();
-}
-
-Status Dataset::AddSlab(int channel, int64_t z0, int64_t nz, std::span<const std::byte> samples,
-                        bool wait_visible) {
-  OCTO_RETURN_IF_ERROR(CheckSlab(channel, z0, nz));
-  const uint64_t sample_bytes = volume::BytesPerSample(info_.dtype);
-  const std::optional<uint64_t> expected =
-      CheckedProduct({info_.PlaneVoxels(), static_cast<uint64_t>(nz), sample_bytes});
-  if (!expected || samples.size() != *expected) {
-    return InvalidArgumentError(
-        name_ + ": " + std::to_string(nz) + " planes of " + std::to_string(info_.size[0]) + "x" +
-        std::to_string(info_.size[1]) + " " + std::string(volume::NumpyName(info_.dtype)) +
-        " are " + (expected ? std::to_string(*expected) : std::string("too many")) +
-        " bytes, got " + std::to_string(samples.size()));
-  }
-  if constexpr (std::endian::native == std::endian::little) {
-    return AddNative(channel, z0, nz, samples, wait_visible);
-  } else {
-    std::vector<std::byte> native(samples.begin(), samples.end());
-    SwapBytesInPlace(native, sample_bytes);
-    return AddNative(channel, z0, nz, native, wait_visible);
-  }
-}
-
-Status Dataset::AddTiffSlab(int channel, int64_t z0, int64_t nz, std::span<const std::byte> tiff,
-                            bool wait_visible) {
-  OCTO_RETURN_IF_ERROR(CheckSlab(channel, z0, std::max<int64_t>(nz, 1)));
-  io::PlaneExpectation expect;
-  expect.width = info_.size[0];
-  expect.height = info_.size[1];
-  expect.dtype = info_.dtype;
-  expect.planes = nz;
-  expect.max_planes = info_.size[2] - z0;
-  expect.max_bytes = kMaxTiffSlabBytes;
-  OCTO_ASSIGN_OR_RETURN(io::DecodedPlanes planes,
-                        io::DecodeTiffPlanes(tiff, name_ + ": slab TIFF", expect));
-  return AddNative(channel, z0, planes.count, planes.samples, wait_visible);
-}
-
-Status Dataset::AddNative(int channel, int64_t z0, int64_t nz, std::span<const std::byte> native,
-                          bool wait_visible) {
-  std::shared_lock add(add_mu_);
-  volume::ValueMap map;
-  {
-    std::lock_guard lock(mu_);
-    if (finished_) {
-      return FailedPreconditionError(name_ + ": the acquisition was finished; no more slabs");
-    }
-    if (!ingest_) return FailedPreconditionError(name_ + ": the stream was closed");
-    map = maps_[channel];
-  }
-  std::vector<std::byte> scratch;
-  const std::span<const std::byte> stored = ToStored(map, native, scratch);
-  const size_t first =
-      static_cast<size_t>(channel) * static_cast<size_t>(info_.size[2]) + static_cast<size_t>(z0);
-  const size_t count = static_cast<size_t>(nz);
-
-  // 1. Claim the planes; a plane received before is a replacement.
-  bool replacement = false;
-  {
-    std::lock_guard claim(claim_mu_);
-    for (size_t i = first; i < first + count; ++i) replacement = replacement || received_[i];
-    if (!replacement) std::fill_n(received_.begin() + first, count, 1);
-  }
-  Status status;
-  std::unique_lock<std::shared_mutex> exclusive;
-  if (!replacement) {
-    status = ingest_->Add(channel, z0, nz, stored);
-    if (status.ok()) {
-      histogram_.Add(channel, stored);
-    } else {
-      std::lock_guard claim(claim_mu_);
-      std::fill_n(received_.begin() + first, count, 0);  // Counted when sent again.
-    }
-  } else {
-    // 2. Replacing planes: alone (no other slab in flight), insert what is staged so that the
-    // old planes are in the tree, subtract them from the histogram, then add the new ones.
-    add.unlock();
-    exclusive = std::unique_lock(add_mu_);
-    {
-      std::lock_guard lock(mu_);
-      if (finished_ || !ingest_) {
-        return FailedPreconditionError(name_ + ": the acquisition was finished; no more slabs");
-      }
-    }
-    std::vector<uint8_t> was_received(received_.begin() + first, received_.begin() + first + count);
-    status = ingest_->Flush();
-    std::vector<std::vector<uint16_t>> old;
-    for (size_t i = 0; status.ok() && i < count; ++i) {
-      if (!was_received[i]) continue;
-      const int64_t z = z0 + static_cast<int64_t>(i);
-      std::vector<uint16_t> values(info_.PlaneVoxels());
-      status =
-          octree::ReadVoxels(*octree(), channel,
-                             octree::Box{{0, 0, z}, {info_.size[0], info_.size[1], z + 1}}, values);
-      old.push_back(std::move(values));
-    }
-    if (status.ok()) status = ingest_->Add(channel, z0, nz, stored);
-    if (status.ok()) {
-      for (const std::vector<uint16_t>& values : old) histogram_.Subtract(channel, values);
-      histogram_.Add(channel, stored);
-      std::lock_guard claim(claim_mu_);
-      std::fill_n(received_.begin() + first, count, 1);
-    }
-  }
-  // 3. Visible now, or within the latency.
-  if (status.ok() && wait_visible) status = FlushIngest();
-  if (status.ok() && !wait_visible) {
-    {
-      std::lock_guard lock(mu_);
-      if (!flush_due_) flush_due_ = std::chrono::steady_clock::now() + flush_latency_;
-    }
-    cv_.notify_all();
-  }
-  RefreshCounters();
-  return status;
-}
-
-Status Dataset::FlushIngest() {
-  Status s = ingest_->Flush();
-  if (!s.ok()) {
-    // Staged planes stay staged (the next flush retries); viewers should know.
-    std::lock_guard lock(mu_);
-    error_ = s.ToString();
-  }
-  return s;
-}
-
-void Dataset::RefreshCounters() {
-  uint64_t received = 0;
-  {
-    std::lock_guard claim(claim_mu_);
-    received = static_cast<uint64_t>(std::count(received_.begin(), received_.end(), 1));
-  }
-  const uint64_t inserted = ingest_ ? ingest_->progress().planes_inserted : planes_inserted_;
-  bool changed = false;
-  {
-    std::lock_guard lock(mu_);
-    changed = received != planes_received_ || inserted != planes_inserted_;
-    planes_received_ = received;
-    planes_inserted_ = inserted;
-  }
-  if (changed) {
-    cv_.notify_all();
-    Notify();
-  }
-}
-
-void Dataset::RunFlushTimer(std::stop_token stop) {
-  std::unique_lock lock(mu_);
-  while (!stop.stop_requested()) {
-    if (!flush_due_) {
-      cv_.wait(lock, stop, [&] { return flush_due_.has_value(); });
-      continue;
-    }
-    const auto due = *flush_due_;
-    if (std::chrono::steady_clock::now() < due) {
-      cv_.wait_until(lock, stop, due, [] { return false; });
-      continue;
-    }
-    flush_due_.reset();
-    lock.unlock();
-    {
-      std::shared_lock add(add_mu_);
-      if (ingest_) {
-        try {
-          if (FlushIngest().ok()) RefreshCounters();
-        } catch (...) {
-          // Exceptions never leave the thread; a failed flush is retried by the next one.
-        }
-      }
-    }
-    lock.lock();
-  }
-}
-
-Status Dataset::Finish() {
-  if (kind_ != Kind::kStream) {
-    return FailedPreconditionError(name_ + ": not a streaming dataset");
-  }
-  std::lock_guard life(lifecycle_mu_);
-  std::unique_lock add(add_mu_);
-  return FinishLocked();
-}
-
-Status Dataset::FinishLocked() {
-  {
-    std::lock_guard lock(mu_);
-    if (finished_) return Status::Ok();
-    if (!ingest_ || !cache_) return FailedPreconditionError(name_ + ": the stream was closed");
-  }
-  Status s = FlushIngest();
-  if (s.ok()) s = WriteHistogramFile(cache_dir_, histogram_.Snapshot(), identity_);
-  if (s.ok()) s = cache_->Commit();
-  if (!s.ok()) {
-    SetError(s);
-    return s;
-  }
-  RefreshCounters();
-  ingest_.reset();
-  insert_pool_.reset();
-  MarkReady([&] {
-    finished_ = true;
-    error_.clear();
-    missing_planes_ =
-        static_cast<uint64_t>(info_.size[2]) * info_.channel_count() - planes_received_;
-  });
-  return Status::Ok();
-}
-
 void Dataset::MarkReady(const std::function<void()>& under_lock) {
   {
     std::lock_guard lock(mu_);
@@ -752,17 +412,11 @@ void Dataset::MarkReady(const std::function<void()>& under_lock) {
 
 void Dataset::Close() {
   std::lock_guard life(lifecycle_mu_);
-  if (kind_ == Kind::kStream) {
-    // An unfinished stream is committed as Finish does: what arrived stays viewable.
-    std::unique_lock add(add_mu_);
-    bool unfinished = false;
-    {
-      std::lock_guard lock(mu_);
-      unfinished = !finished_ && ingest_ && cache_;
-    }
-    if (unfinished) (void)FinishLocked();
-  }
-  // The worker (a build, or the flush timer) stops first: it may wait for add_mu_.
+  CloseLocked();
+}
+
+void Dataset::CloseLocked() {
+  // The worker (a build, a cache load, a resume) stops first: it may wait for add_mu_.
   if (worker_.joinable()) {
     worker_.request_stop();
     cv_.notify_all();
@@ -771,16 +425,26 @@ void Dataset::Close() {
   std::unique_ptr<octree::OctreeCache> cache;
   {
     std::unique_lock add(add_mu_);
+    if (kind_ == Kind::kStream) {
+      // An unfinished stream is suspended, never finished: checkpointed, then closed. Should the
+      // checkpoint fail, it resumes from its previous one (and says what was lost).
+      if (Status s = CheckpointLocked(); !s.ok()) {
+        std::lock_guard lock(mu_);
+        error_ = name_ + ": closed without its last checkpoint: " + s.message();
+      }
+    }
     ingest_.reset();
     insert_pool_.reset();
     std::lock_guard lock(mu_);
     if (!cache_ && state_ != DatasetState::kBuilding) return;  // Nothing open.
     tree_.store(nullptr, std::memory_order_release);
     cache = std::move(cache_);
+    flush_due_.reset();
+    // A stream's next checkpoint is its resume's business (a failed one above left the cache at
+    // the previous checkpoint, which the resume reports).
+    changed_since_checkpoint_ = false;
     if (kind_ == Kind::kFile && state_ == DatasetState::kBuilding) state_ = DatasetState::kPending;
-    if (kind_ == Kind::kFile && state_ == DatasetState::kReady && !histogram_complete_) {
-      // Counting stopped with the worker; the next Open counts again.
-    }
+    // A ready file whose histogram was still being counted: the next Open counts again.
   }
   {
     std::lock_guard budget(budget_mu_);

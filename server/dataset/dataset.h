@@ -10,10 +10,26 @@
 //           again retries.
 //   stream: CreateStream --> kStreaming (AddSlab inserts planes; a latency timer makes staged
 //           planes visible) --Finish--> kReady (the cache is committed and opens with
-//           `octoscope render CACHE`).
-//   Close releases the octree and page cache (a build is cancelled; an unfinished stream is
-//   committed first, as Finish does); the state then says what the cache on disk holds
-//   (kReady for a complete cache, kPending otherwise) and a later Open reopens it.
+//           `octoscope render CACHE`). Only Finish finishes a stream: its owner's call.
+//   Close releases the octree and page cache (a build is cancelled); the state then says what
+//   the cache on disk holds (kReady for a complete cache, kPending otherwise) and a later Open
+//   reopens it. An unfinished stream is SUSPENDED instead: checkpointed durably
+//   (octree::OctreeCache::Checkpoint: its octree, received planes and histogram) and closed; it
+//   stays kStreaming, and the next AddSlab, Open or Finish resumes it transparently (Open on the
+//   worker, the others at once) with planes_received, missing planes, histogram and plane
+//   replacement exactly as before. Release (the DatasetHub's idle release) is Close, except that
+//   it leaves a stream that received a slab recently open.
+//
+// Checkpoints: an open unfinished stream is also checkpointed by its timer thread once it has
+// been quiet (no slab) for StreamSpec::checkpoint_quiet after a change, and at least every
+// checkpoint_interval while slabs keep arriving. A crash loses at most what arrived since the
+// last checkpoint; the stream then resumes from that checkpoint and its warnings say which planes
+// must be sent (again) — see docs/server.md, "Streams live until their owner finishes them".
+//
+// Persistence: a stream with a record folder (StreamSpec::record_dir) keeps its record there
+// (stream_record.h): written at creation, at Finish and when a warning is added. RestoreStream
+// brings it back after a restart, suspended, from its record and its cache (the last checkpoint,
+// or the complete cache of a finished stream).
 //
 // Explicit lifetime: everything the dataset owns (worker thread, cache lock, page cache, octree,
 // ingest) is private; Close and the destructor stop and join the worker, wait for slab calls in
@@ -32,7 +48,7 @@
 // (DatasetStatus::histogram_complete says when).
 //
 // Thread safety: every member function is thread-safe. OnChange callbacks run on worker, upload
-// or timer threads (never under the dataset's locks) and must be cheap.
+// or timer threads (never under the dataset's mutex mu_) and must be cheap.
 #ifndef OCTOSCOPE_DATASET_DATASET_H_
 #define OCTOSCOPE_DATASET_DATASET_H_
 
@@ -58,8 +74,10 @@
 #include "dataset/histogram.h"
 #include "io/open_options.h"
 #include "octree/octree.h"
+#include "octree/octree_builder.h"
 #include "octree/octree_cache.h"
 #include "octree/slab_ingest.h"
+#include "protocol/dataset_json.h"
 #include "util/result.h"
 #include "util/status.h"
 #include "util/worker_pool.h"
@@ -105,7 +123,21 @@ struct StreamSpec {
   // Staged planes (of brick layers not complete yet) are inserted at most this long after they
   // arrived (plus the insert's own time), so viewers see them within 250 ms.
   std::chrono::milliseconds flush_latency{100};
+  // An open stream is checkpointed once no slab came for checkpoint_quiet after a change, and at
+  // least every checkpoint_interval while slabs keep coming.
+  std::chrono::milliseconds checkpoint_quiet{2000};
+  std::chrono::milliseconds checkpoint_interval{60000};
+  std::string creator;                 // Opaque (who created it); "" for the server's own.
+  std::filesystem::path watch_folder;  // The --watch folder feeding it; empty for none.
+  std::filesystem::path record_dir;    // Its record goes there (ID.json); empty = none.
+  // Runs after a suspended stream was resumed, on the resuming thread, without the dataset's
+  // locks (the registry re-divides the RAM budget). May be empty.
+  std::function<void()> on_resume;
 };
+
+// Copies a stream request's shape (name, size, channels, dtype, spacing, channel names) into
+// `spec`.
+void SetStreamShape(const protocol::StreamRequest& shape, StreamSpec& spec);
 
 // The largest plane (x * y * bytes per sample) a stream accepts.
 inline constexpr uint64_t kMaxStreamPlaneBytes = uint64_t{1} << 30;
@@ -121,6 +153,7 @@ struct DatasetStatus {
   std::optional<uint64_t> missing_planes;  // Finished streams: planes that never arrived.
   bool histogram_complete = false;         // histogram() counts every inserted voxel.
   std::string error;                       // One line; "" unless something failed.
+  std::vector<std::string> warnings;       // Streams: e.g. planes lost in an unclean stop.
   std::filesystem::path cache_dir;
 };
 
@@ -131,8 +164,18 @@ class Dataset {
   static std::shared_ptr<Dataset> ForSource(const SourceSpec& spec);
   // A streaming dataset in kStreaming with an empty octree in a fresh cache directory
   // cache_root / id. kInvalidArgument for a bad spec (sizes, channels, type, spacing, names,
-  // planes over kMaxStreamPlaneBytes); cache errors as OctreeCache::Open.
+  // planes over kMaxStreamPlaneBytes); cache errors as OctreeCache::CreateResumable. The stream
+  // is checkpointed at once (an empty checkpoint) and its record written.
   static Result<std::shared_ptr<Dataset>> CreateStream(const StreamSpec& spec);
+  // A stream created before (its record), as its cache left it: suspended, listed with its
+  // received planes, histogram and state (kStreaming from a checkpoint, kReady from a complete
+  // cache); the next AddSlab, Open or Finish resumes it. `defaults` gives what the record does
+  // not hold (cache_root, RAM, latencies, record_dir, on_resume). A stream whose cache is missing
+  // or damaged is kError saying so (its slabs and Finish are refused); an unclean stop (see
+  // "Checkpoints") adds a warning naming the planes to send again. kInvalidArgument for a record
+  // that breaks CreateStream's rules.
+  static Result<std::shared_ptr<Dataset>> RestoreStream(const protocol::StreamRecord& record,
+                                                        const StreamSpec& defaults);
   ~Dataset();
   Dataset(const Dataset&) = delete;
   Dataset& operator=(const Dataset&) = delete;
@@ -140,6 +183,12 @@ class Dataset {
   const std::string& id() const { return id_; }
   const std::string& name() const { return name_; }
   bool is_stream() const { return kind_ == Kind::kStream; }
+  // Streams: who created it (opaque; "" for the server's own streams and for files).
+  const std::string& creator() const { return creator_; }
+  // Streams fed by a watched folder: the folder; else empty.
+  const std::filesystem::path& watch_folder() const { return watch_folder_; }
+  // Streams: per (channel, z), channel-major, whether the plane was received.
+  std::vector<bool> received_planes() const;
   // The scan's metadata (a stream's from its spec), fixed at creation.
   const volume::VolumeInfo& info() const { return info_; }
   // Voxel spacing in µm, 1 where the scan does not say.
@@ -153,8 +202,8 @@ class Dataset {
 
   // Makes the octree available: idempotent and non-blocking (the work runs on the dataset's
   // worker thread; OnChange / WaitFor tell when octree() is there). Reuses a complete matching
-  // cache, else builds one. Errors only for a dataset that cannot be opened at all (its file
-  // was unreadable when listed).
+  // cache, else builds one; a suspended stream is resumed. Errors only for a dataset that cannot
+  // be opened at all (its file was unreadable when listed, a stream's cache is lost).
   Status Open();
   // The octree, or null until Open succeeded (or after Close). Valid until Close.
   octree::Octree* octree() const { return tree_.load(std::memory_order_acquire); }
@@ -178,14 +227,20 @@ class Dataset {
                      bool wait_visible);
   // Streams only: inserts everything staged, writes histogram.bin and commits the cache (it then
   // opens with `octoscope render CACHE`); state kReady with missing_planes. Idempotent.
+  // Resumes a suspended stream first.
   Status Finish();
 
   // The dataset's RAM budget (see the header comment); takes effect at once.
   void SetRamBudget(uint64_t bytes);
   uint64_t ram_budget() const;
 
-  // Releases the octree and page cache (see the header comment). Idempotent.
+  // Releases the octree and page cache (see the header comment; an unfinished stream is
+  // suspended). Idempotent.
   void Close();
+  // Close for an idle release, except for an unfinished stream that received a slab less than
+  // `quiet` ago (kFailedPrecondition: it stays open) or whose checkpoint fails (that error; it
+  // stays open). OK when the dataset is closed now.
+  Status Release(std::chrono::milliseconds quiet);
 
   // `callback` is called whenever status or progress changes or new data became visible.
   Subscription OnChange(std::function<void()> callback);
@@ -203,22 +258,56 @@ class Dataset {
 
   Dataset(Kind kind, Identity identity, volume::VolumeInfo info);
 
-  // Worker of a file dataset: reuse or build (file), or reopen a finished stream's cache.
+  // Worker of Open: reuse or build (file), reopen a finished stream's cache, or resume a
+  // suspended stream.
   void RunOpen(std::stop_token stop);
   Status OpenOrBuild(std::stop_token stop);
   Status ReopenStream(std::stop_token stop);
+  // Close's work. REQUIRES: lifecycle_mu_ held.
+  void CloseLocked();
+  // Resumes a suspended stream (no-op when open or finished), then notifies and runs on_resume.
+  Status ResumeStream();
+  // Resume's work: reopens the checkpoint, its received planes and histogram, the ingest and
+  // the timer. Sets *resumed when it did. REQUIRES: add_mu_ held exclusively.
+  Status ResumeLocked(bool* resumed);
+  // Checkpoints an open unfinished stream that changed since its last checkpoint (else OK).
+  // REQUIRES: add_mu_ held exclusively.
+  Status CheckpointLocked();
+  // Starts the stream's timer thread unless it runs. REQUIRES: add_mu_ held exclusively (or no
+  // other thread knows the dataset yet).
+  Status EnsureStreamTimer();
+  // A stream's shell (no cache yet) for CreateStream and RestoreStream.
+  static Result<std::shared_ptr<Dataset>> NewStream(const StreamSpec& spec);
+  // The cache parameters and RAM split of the stream (its budget now).
+  octree::CacheParams StreamParams() const;
+  octree::BuildBudget StreamBudget() const;
+  // The checkpoint attachments of the received planes and histogram now.
+  octree::CheckpointAttachments CheckpointAttachmentsNow();
+  // Makes `cache` the open stream's: ingest (the received planes count as inserted), worker
+  // pool, publication, timer. REQUIRES: add_mu_ held exclusively (or a stream being created).
+  Status StartIngest(std::unique_ptr<octree::OctreeCache> cache, const octree::BuildBudget& budget);
+  // Writes the stream's record (no-op without a record folder).
+  Status WriteRecord();
+  // Adds `warning` to the stream's warnings (and its record).
+  void AddWarning(const std::string& warning);
+  // The warning of an unclean stop for the received planes `received`.
+  std::string UncleanStopWarning(const std::vector<uint8_t>& received) const;
   // Loads histogram.bin, or counts the octree's voxels and writes it.
   void LoadOrCountHistogram(const octree::SourceIdentity& identity, std::stop_token stop);
-  // Worker of a stream: inserts staged planes when their latency is up.
-  void RunFlushTimer(std::stop_token stop);
+  // Timer of a stream: inserts staged planes when their latency is up, checkpoints when due.
+  void RunStreamTimer(std::stop_token stop);
   // Makes `cache` the dataset's (octree() returns its tree) with `reserved` bytes of the budget
   // kept for construction, and applies the budget.
   void Publish(std::unique_ptr<octree::OctreeCache> cache, uint64_t reserved);
   // Applies the current budget to the page cache.
   void ApplyBudget();
-  // AddSlab after conversion to the file type in native byte order.
+  // AddSlab after conversion to the file type in native byte order (resumes a suspended stream).
   Status AddNative(int channel, int64_t z0, int64_t nz, std::span<const std::byte> native,
                    bool wait_visible);
+  // AddNative on the open stream; sets *suspended (and changes nothing) when it found the stream
+  // suspended (or suspended and resumed while it waited): resume and call again.
+  Status AddToOpenStream(int channel, int64_t z0, int64_t nz, std::span<const std::byte> stored,
+                         bool wait_visible, bool* suspended);
   Status CheckSlab(int channel, int64_t z0, int64_t nz) const;
   // Finish's work. REQUIRES: lifecycle_mu_ held, add_mu_ held exclusively.
   Status FinishLocked();
@@ -247,6 +336,14 @@ class Dataset {
   bool refers_outside_ = false;  // header_error_ is the gate's refusal.
   // Streams.
   std::chrono::milliseconds flush_latency_{100};
+  std::chrono::milliseconds checkpoint_quiet_{2000};
+  std::chrono::milliseconds checkpoint_interval_{60000};
+  std::string creator_;
+  std::filesystem::path watch_folder_;
+  std::filesystem::path record_dir_;
+  int64_t created_unix_ms_ = 0;
+  std::function<void()> on_resume_;
+  std::string restore_error_;  // Set when a restored stream's cache is unusable: it stays kError.
 
   std::mutex lifecycle_mu_;  // Serialises Open, Finish and Close.
   mutable std::mutex mu_;    // Guards the fields below; never held across I/O or callbacks.
@@ -259,6 +356,13 @@ class Dataset {
   bool histogram_complete_ = false;
   bool worker_active_ = false;
   bool finished_ = false;  // A stream after Finish.
+  std::vector<std::string> warnings_;
+  // Open streams: the last slab, whether anything changed since the last checkpoint, when that
+  // was, and when a failed checkpoint may be retried.
+  std::chrono::steady_clock::time_point last_slab_{};
+  bool changed_since_checkpoint_ = false;
+  std::chrono::steady_clock::time_point last_checkpoint_{};
+  std::chrono::steady_clock::time_point checkpoint_retry_{};
   uint64_t ram_bytes_ = kDefaultDatasetRamBytes;
   uint64_t reserved_bytes_ = 0;  // Of ram_bytes_, kept for construction (slabs, staging).
   std::vector<volume::ValueMap> maps_;
@@ -273,12 +377,15 @@ class Dataset {
   std::shared_mutex add_mu_;
   std::unique_ptr<WorkerPool> insert_pool_;
   std::unique_ptr<octree::SlabIngest> ingest_;
-  std::mutex claim_mu_;
+  mutable std::mutex claim_mu_;
   std::vector<uint8_t> received_;  // Guarded by claim_mu_: per (channel, z), 1 = received.
   octree::SourceIdentity identity_;
 
   HistogramAccumulator histogram_;
   std::shared_ptr<ChangeNotifier> notifier_;
+  // Streams: flushes and checkpoints (RunStreamTimer); started on creation or the first resume,
+  // stopped by the destructor. Last: stopped before anything it uses is destroyed.
+  std::jthread stream_timer_;
 };
 
 }  // namespace octoscope::dataset

@@ -8,6 +8,8 @@ protocol::DatasetDescription Describe(const Dataset& dataset) {
   d.id = dataset.id();
   d.name = dataset.name();
   d.info = dataset.info();
+  // The scan's warnings, then the dataset's own (a stream's unclean stop).
+  d.info.warnings.insert(d.info.warnings.end(), status.warnings.begin(), status.warnings.end());
   d.spacing_um = dataset.spacing_um();
   d.state = std::string(StateName(status.state));
   d.planes_total = status.planes_total;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <system_error>
 
+#include "dataset/stream_record.h"
 #include "util/random_token.h"
 
 namespace octoscope::dataset {
@@ -32,20 +33,11 @@ uint64_t Fnv1a(std::string_view text, uint64_t h = 1469598103934665603ull) {
   return h;
 }
 
-StreamSpec SpecFor(const protocol::StreamRequest& request, const std::string& id,
-                   const RegistryOptions& options) {
-  StreamSpec spec;
-  spec.id = id;
-  spec.name = request.name;
-  spec.size = request.size;
-  spec.channels = request.channels;
-  spec.dtype = request.dtype;
-  spec.spacing_um = request.spacing_um;
-  spec.channel_names = request.channel_names;
-  spec.cache_root = options.cache_root;
-  spec.ram_bytes = options.ram_bytes;
-  spec.flush_latency = options.stream_flush_latency;
-  return spec;
+// Paths compared as the file system resolves them (a watched folder given another way).
+fs::path Canonical(const fs::path& path) {
+  std::error_code ec;
+  fs::path canonical = fs::weakly_canonical(fs::absolute(path, ec), ec);
+  return ec ? path.lexically_normal() : canonical;
 }
 
 }  // namespace
@@ -63,6 +55,13 @@ std::string ScanDatasetId(size_t root_index, const fs::path& relative_path) {
   return id;
 }
 
+DatasetRegistry::DatasetRegistry(RegistryOptions options)
+    : options_(std::move(options)),
+      record_dir_(options_.state_dir.empty() ? fs::path() : StreamRecordDir(options_.state_dir)),
+      hook_(std::make_shared<Hook>()) {
+  hook_->registry = this;
+}
+
 Result<std::unique_ptr<DatasetRegistry>> DatasetRegistry::Create(const RegistryOptions& options) {
   std::error_code ec;
   for (const fs::path& dir : options.data_dirs) {
@@ -71,11 +70,67 @@ Result<std::unique_ptr<DatasetRegistry>> DatasetRegistry::Create(const RegistryO
   fs::create_directories(options.cache_root, ec);
   if (ec) return IoError(options.cache_root.string() + ": cannot create: " + ec.message());
   std::unique_ptr<DatasetRegistry> registry(new DatasetRegistry(options));
+  if (!registry->record_dir_.empty()) {
+    OCTO_RETURN_IF_ERROR(EnsureStreamRecordDir(registry->record_dir_));
+  }
   for (size_t i = 0; i < options.data_dirs.size(); ++i) registry->Scan(options.data_dirs[i], i);
+  if (!registry->record_dir_.empty()) registry->RestoreStreams();
   return registry;
 }
 
 DatasetRegistry::~DatasetRegistry() { Close(); }
+
+StreamSpec DatasetRegistry::StreamDefaults() const {
+  StreamSpec spec;
+  spec.cache_root = options_.cache_root;
+  spec.ram_bytes = options_.ram_bytes;
+  spec.flush_latency = options_.stream_flush_latency;
+  spec.checkpoint_quiet = options_.stream_checkpoint_quiet;
+  spec.checkpoint_interval = options_.stream_checkpoint_interval;
+  spec.record_dir = record_dir_;
+  spec.on_resume = [hook = hook_] {
+    std::lock_guard<std::mutex> lock(hook->mu);
+    if (hook->registry != nullptr) hook->registry->Rebalance();
+  };
+  return spec;
+}
+
+void DatasetRegistry::RestoreStreams() {
+  auto found = ReadStreamRecords(record_dir_);
+  if (!found.ok()) {
+    restore_messages_.push_back("streams not restored: " + found.status().message());
+    return;
+  }
+  for (FoundStreamRecord& f : *found) {
+    if (!f.record.ok()) {
+      restore_messages_.push_back("stream record skipped: " + f.record.status().message());
+      continue;
+    }
+    const protocol::StreamRecord& record = *f.record;
+    // Another cache root's stream (another configuration of the server): not ours to list.
+    if (Canonical(record.cache) != Canonical(options_.cache_root / record.id)) continue;
+    if (Find(record.id) != nullptr) {
+      restore_messages_.push_back("stream " + record.id + " skipped: its id is taken");
+      continue;
+    }
+    auto restored = Dataset::RestoreStream(record, StreamDefaults());
+    if (!restored.ok()) {
+      restore_messages_.push_back("stream record " + f.path.string() +
+                                  " skipped: " + restored.status().message());
+      continue;
+    }
+    const DatasetStatus status = (*restored)->status();
+    if (status.state == DatasetState::kError) {
+      restore_messages_.push_back("stream " + record.id + ": " + status.error);
+    }
+    for (const std::string& warning : status.warnings) {
+      restore_messages_.push_back("stream " + record.id + ": " + warning);
+    }
+    std::lock_guard<std::mutex> lock(mu_);
+    by_id_.emplace(record.id, *restored);
+    ordered_.push_back(std::move(*restored));
+  }
+}
 
 void DatasetRegistry::Scan(const fs::path& root, size_t root_index) {
   // A data folder that is itself one dataset (a slice folder, an OME-Zarr) is listed as such.
@@ -155,25 +210,56 @@ Result<std::shared_ptr<Dataset>> DatasetRegistry::Open(std::string_view id) {
 }
 
 Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateStream(
-    const protocol::StreamRequest& request) {
+    const protocol::StreamRequest& request, const std::string& creator) {
   for (int attempt = 0; attempt < 8; ++attempt) {
     OCTO_ASSIGN_OR_RETURN(std::string hex, RandomHex(6));
-    if (Find(hex) == nullptr) return CreateStreamWithId(request, hex);
+    if (Find(hex) == nullptr) return AddStream(request, hex, creator, {});
   }
   return InternalError("no free stream id");
 }
 
 Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateStreamWithId(
-    const protocol::StreamRequest& request, const std::string& id) {
+    const protocol::StreamRequest& request, const std::string& id, const std::string& creator) {
+  return AddStream(request, id, creator, {});
+}
+
+Result<std::shared_ptr<Dataset>> DatasetRegistry::CreateWatchedStream(
+    const protocol::StreamRequest& request, const fs::path& folder) {
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    OCTO_ASSIGN_OR_RETURN(std::string hex, RandomHex(6));
+    if (Find(hex) == nullptr) return AddStream(request, hex, "", Canonical(folder));
+  }
+  return InternalError("no free stream id");
+}
+
+std::shared_ptr<Dataset> DatasetRegistry::FindWatchedStream(const fs::path& folder) const {
+  const fs::path canonical = Canonical(folder);
+  const std::vector<std::shared_ptr<Dataset>> all = List();
+  for (auto it = all.rbegin(); it != all.rend(); ++it) {
+    if (!(*it)->watch_folder().empty() && Canonical((*it)->watch_folder()) == canonical) return *it;
+  }
+  return nullptr;
+}
+
+Result<std::shared_ptr<Dataset>> DatasetRegistry::AddStream(const protocol::StreamRequest& request,
+                                                            const std::string& id,
+                                                            const std::string& creator,
+                                                            const fs::path& watch_folder) {
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (closed_) return UnavailableError("the server is shutting down");
     if (by_id_.count(id) != 0) return FailedPreconditionError("dataset '" + id + "' exists");
   }
+  StreamSpec spec = StreamDefaults();
+  spec.id = id;
+  SetStreamShape(request, spec);
+  spec.creator = creator;
+  spec.watch_folder = watch_folder;
+  // The demo streams afresh on every start: it has no record.
+  if (id == kDemoId) spec.record_dir.clear();
   std::error_code ec;
   fs::remove_all(options_.cache_root / id, ec);  // A fresh acquisition replaces an old one.
-  OCTO_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> dataset,
-                        Dataset::CreateStream(SpecFor(request, id, options_)));
+  OCTO_ASSIGN_OR_RETURN(std::shared_ptr<Dataset> dataset, Dataset::CreateStream(spec));
   {
     std::lock_guard<std::mutex> lock(mu_);
     by_id_.emplace(id, dataset);
@@ -188,10 +274,7 @@ void DatasetRegistry::Rebalance() {
   for (const auto& dataset : List()) {
     // Opening ones count too: their build or cache load starts with its share.
     const DatasetStatus status = dataset->status();
-    if (status.open || status.state == DatasetState::kBuilding ||
-        status.state == DatasetState::kStreaming) {
-      open.push_back(dataset);
-    }
+    if (status.open || status.state == DatasetState::kBuilding) open.push_back(dataset);
   }
   if (open.empty()) return;
   const uint64_t share = options_.ram_bytes / open.size();
@@ -201,6 +284,10 @@ void DatasetRegistry::Rebalance() {
 }
 
 void DatasetRegistry::Close() {
+  {
+    std::lock_guard<std::mutex> lock(hook_->mu);
+    hook_->registry = nullptr;
+  }
   std::vector<std::shared_ptr<Dataset>> all;
   {
     std::lock_guard<std::mutex> lock(mu_);

@@ -33,7 +33,7 @@ Result<std::unique_ptr<DemoStream>> DemoStream::Start(DatasetRegistry* registry,
   std::unique_ptr<DemoStream> demo(new DemoStream);
   demo->options_ = options;
   demo->id_ = std::string(DemoDatasetId());
-  OCTO_ASSIGN_OR_RETURN(demo->dataset_, registry->CreateStreamWithId(request, demo->id_));
+  OCTO_ASSIGN_OR_RETURN(demo->dataset_, registry->CreateStreamWithId(request, demo->id_, ""));
   demo->specimen_ = std::move(specimen);
   demo->thread_ = std::jthread([d = demo.get()](std::stop_token stop) { d->Run(stop); });
   return demo;

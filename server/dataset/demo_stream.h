@@ -2,7 +2,8 @@
 // fluorescent embryo with nuclei, membranes and spots; deterministic for a size and seed) streamed
 // into a streaming dataset plane by plane, paced like an acquisition, then finished. A new user
 // sees streaming, interaction and refinement at once. Each run streams afresh (the demo's cache
-// folder is replaced).
+// folder is replaced; the demo has no stream record). An idle release never stops or finishes
+// it: it only suspends the stream while it is quiet, and the next plane resumes it.
 //
 // Thread safety: Start and the destructor from one thread; the stream runs on its own thread.
 #ifndef OCTOSCOPE_DATASET_DEMO_STREAM_H_

@@ -100,17 +100,55 @@ void FolderWatcher::ReadSidecar() {
     return;
   }
   if (request->name.empty()) request->name = dir_.filename().string();
-  auto created = registry_->CreateStream(*request);
+  index_base_ = request->index_base;
+  received_.assign(static_cast<size_t>(request->channels) * request->size[2], false);
+  // The folder's stream from before a restart goes on, if it is this acquisition.
+  std::shared_ptr<Dataset> previous = registry_->FindWatchedStream(dir_);
+  if (previous != nullptr) {
+    const volume::VolumeInfo& info = previous->info();
+    const DatasetStatus status = previous->status();
+    if (status.state == DatasetState::kError) {
+      // Its cache is lost; the folder still holds the planes.
+      Report("stream " + previous->id() + " cannot go on (" + status.error +
+             "); streaming the folder into a new dataset");
+    } else if (info.size == request->size && info.channel_count() == request->channels &&
+               info.dtype == request->dtype) {
+      Resume(std::move(previous));
+      return;
+    } else {
+      Report("the sidecar describes another acquisition than stream " + previous->id() +
+             "; streaming into a new dataset");
+    }
+  }
+  auto created = registry_->CreateWatchedStream(*request, dir_);
   if (!created.ok()) {
     Report("cannot create the stream: " + created.status().message());
     finished_ = true;
     return;
   }
   dataset_ = *created;
-  index_base_ = request->index_base;
-  received_.assign(static_cast<size_t>(request->channels) * request->size[2], false);
   logger_->Log(LogLevel::kInfo,
                "watch " + dir_.string() + ": streaming into dataset " + dataset_->id());
+  std::lock_guard<std::mutex> lock(mu_);
+  stats_.dataset_id = dataset_->id();
+}
+
+void FolderWatcher::Resume(std::shared_ptr<Dataset> dataset) {
+  dataset_ = std::move(dataset);
+  const DatasetStatus status = dataset_->status();
+  if (status.state == DatasetState::kReady) {
+    finished_ = true;
+    logger_->Log(LogLevel::kInfo,
+                 "watch " + dir_.string() + ": dataset " + dataset_->id() + " is complete already");
+  } else {
+    // Planes received before are not read again: their files are taken as ingested.
+    already_received_ = dataset_->received_planes();
+    received_ = already_received_;
+    logger_->Log(LogLevel::kInfo,
+                 "watch " + dir_.string() + ": resuming dataset " + dataset_->id() + " (" +
+                     std::to_string(status.planes_received) + " of " +
+                     std::to_string(status.planes_total) + " planes received before)");
+  }
   std::lock_guard<std::mutex> lock(mu_);
   stats_.dataset_id = dataset_->id();
 }
@@ -178,6 +216,14 @@ void FolderWatcher::Consider(const fs::path& path, int channel, int64_t z) {
   if (ec) return;
   const auto now = std::chrono::steady_clock::now();
   FileState& state = files_[path];
+  const size_t plane = static_cast<size_t>(channel) * dataset_->info().size[2] + z;
+  if (state.stable_since == decltype(now){} && !already_received_.empty() &&
+      already_received_[plane]) {
+    // A resumed stream received this plane before the restart: its file counts as ingested
+    // until it changes.
+    state = FileState{size, mtime, now, true, false};
+    return;
+  }
   if (state.size != size || state.mtime != mtime || state.stable_since == decltype(now){}) {
     // New or still changing: wait until it has been quiet for settle_time.
     state = FileState{size, mtime, now, false, false};
@@ -188,7 +234,7 @@ void FolderWatcher::Consider(const fs::path& path, int channel, int64_t z) {
   Status status = bytes.ok() ? dataset_->AddTiffSlab(channel, z, 1, *bytes, false) : bytes.status();
   if (status.ok()) {
     state.done = true;
-    received_[static_cast<size_t>(channel) * dataset_->info().size[2] + z] = true;
+    received_[plane] = true;
     std::lock_guard<std::mutex> lock(mu_);
     ++stats_.planes_ingested;
     return;

@@ -13,6 +13,14 @@
 // changes; a file that is rewritten replaces its plane. When every plane of every channel has
 // arrived the dataset is finished (its cache then opens with `octoscope render`).
 //
+// Restarts: the folder's stream is recorded with the folder (DatasetRegistry::
+// CreateWatchedStream). A watcher started on a folder whose stream is listed already (restored
+// after a restart) goes on with it when the sidecar describes the same volume (size, channels,
+// type): files of planes it received before are not read again (until they change), the others
+// are streamed in, and the acquisition is finished when it is complete (a stream whose cache was
+// lost, or of another shape, is replaced by a new one fed from the folder's files). An idle
+// release of the stream never stops the watcher: the next plane resumes the stream.
+//
 // Thread safety: Start and the destructor from one thread; the watcher polls on its own thread.
 #ifndef OCTOSCOPE_DATASET_FOLDER_WATCHER_H_
 #define OCTOSCOPE_DATASET_FOLDER_WATCHER_H_
@@ -76,6 +84,8 @@ class FolderWatcher {
   // One pass over the folder.
   void Poll();
   void ReadSidecar();
+  // Goes on with the folder's stream from before a restart.
+  void Resume(std::shared_ptr<Dataset> dataset);
   // The (channel, z) of a plane file, or nullopt (logged once) when the name says none.
   std::optional<std::pair<int, int64_t>> PlaneOf(const std::filesystem::path& path,
                                                  std::optional<uint64_t> folder_channel);
@@ -90,6 +100,8 @@ class FolderWatcher {
   int index_base_ = 0;
   std::map<std::filesystem::path, FileState> files_;
   std::vector<bool> received_;  // Per channel * z.
+  // A resumed stream: the planes it had received before (their files are not read again).
+  std::vector<bool> already_received_;
   bool finished_ = false;
   mutable std::mutex mu_;  // Guards stats_.
   WatchStats stats_;

@@ -30,6 +30,9 @@ constexpr char kPoolName[] = "octree.pool";
 constexpr char kNodesName[] = "octree.nodes";
 constexpr char kBuildingName[] = "BUILDING";
 constexpr char kLockName[] = "LOCK";
+constexpr char kShadowName[] = "octree.shadow";
+constexpr char kDirtyName[] = "DIRTY";
+constexpr char kCheckpointPrefix[] = "checkpoint-";
 constexpr char kMagic[] = "octoscope-octree-cache";
 constexpr uint64_t kMaxManifestBytes = 1 << 20;
 constexpr uint64_t kMaxNodesBytes = uint64_t{16} << 30;
@@ -101,6 +104,45 @@ int Flock(int fd, int operation) {
     result = ::flock(fd, operation);
   } while (result != 0 && errno == EINTR);
   return result;
+}
+
+// checkpoint-G.NAME: a file of checkpoint generation G.
+fs::path CheckpointFile(const fs::path& dir, uint64_t generation, std::string_view name) {
+  return dir / (kCheckpointPrefix + std::to_string(generation) + "." + std::string(name));
+}
+
+// What DIRTY says once the build changed after checkpoint `generation`.
+std::string DirtyText(uint64_t generation) {
+  return "dirty after checkpoint " + std::to_string(generation) + "\n";
+}
+
+// Attachment names: [a-z]{1,32}, not "nodes" or "shadow" (the checkpoint's own files).
+bool IsAttachmentName(std::string_view name) {
+  return !name.empty() && name.size() <= 32 && name != "nodes" && name != "shadow" &&
+         std::all_of(name.begin(), name.end(), [](char c) { return c >= 'a' && c <= 'z'; });
+}
+
+// A checkpoint file whose MANIFEST gives its checksum; kCorrupt naming it when it is missing or
+// does not match.
+Result<std::string> ReadCheckpointFile(const fs::path& path, uint64_t checksum,
+                                       std::string_view what) {
+  auto bytes = ReadSmallFile(path, kMaxNodesBytes);
+  if (!bytes.ok() || Fnv1a64(*bytes) != checksum) {
+    return CorruptError(path.string() + ": missing or damaged (the checkpoint's " +
+                        std::string(what) + " does not match its MANIFEST)");
+  }
+  return bytes;
+}
+
+Status CheckBudget(uint64_t ram_bytes, uint64_t page_bytes) {
+  // Construction pins a few pages at once (a brick and its neighbours' aprons): a budget of fewer
+  // pages could wait forever, so refuse it up front.
+  if (ram_bytes >= OctreeCache::kMinPages * page_bytes) return Status::Ok();
+  return ResourceExhaustedError("a RAM budget of " + std::to_string(ram_bytes >> 20) +
+                                " MiB for brick pages holds fewer than " +
+                                std::to_string(OctreeCache::kMinPages) + " pages of " +
+                                std::to_string(page_bytes >> 10) +
+                                " KiB; give more RAM (--ram-mb) or use smaller bricks (--brick)");
 }
 
 }  // namespace
@@ -230,7 +272,7 @@ std::string CacheManifest::Serialize() const {
   const volume::VolumeInfo& info = params.info;
   std::ostringstream out;
   out << kMagic << " " << kVersion << "\n";
-  out << "state complete\n";
+  out << "state " << (state == State::kComplete ? "complete" : "checkpoint") << "\n";
   out << "source_hash " << Hex(source.hash) << "\n";
   out << "source_bytes " << source.file_bytes << "\n";
   out << "size " << info.size[0] << " " << info.size[1] << " " << info.size[2] << "\n";
@@ -251,6 +293,13 @@ std::string CacheManifest::Serialize() const {
   }
   out << "page_bytes " << page_bytes << "\n";
   out << "nodes_checksum " << Hex(nodes_checksum) << "\n";
+  if (state == State::kCheckpoint) {
+    out << "generation " << generation << "\n";
+    out << "shadow_map " << Hex(shadow_checksum) << "\n";
+    for (const Attachment& a : attachments) {
+      out << "attachment " << a.name << " " << Hex(a.checksum) << "\n";
+    }
+  }
   return out.str();
 }
 
@@ -279,14 +328,28 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
   for (size_t i = 1; i < lines.size(); ++i) {
     std::vector<std::string_view> f = Split(lines[i], ' ');
     const std::string key(f[0]);
-    if (key != "value_map" && seen[key]++ > 0)
+    if (key != "value_map" && key != "attachment" && seen[key]++ > 0)
       return CorruptError("MANIFEST repeats '" + key + "'");
     if (key == "state") {
-      if (f.size() != 2 || f[1] != "complete") return bad(lines[i]);
-    } else if (key == "source_hash" || key == "nodes_checksum") {
+      if (f.size() != 2 || (f[1] != "complete" && f[1] != "checkpoint")) return bad(lines[i]);
+      m.state = f[1] == "complete" ? State::kComplete : State::kCheckpoint;
+    } else if (key == "generation") {
+      auto v = f.size() == 2 ? integer(f[1], 1, INT64_MAX) : std::nullopt;
+      if (!v) return bad(lines[i]);
+      m.generation = static_cast<uint64_t>(*v);
+    } else if (key == "attachment") {
+      auto checksum = f.size() == 3 ? ParseHex(f[2]) : std::nullopt;
+      if (!checksum || !IsAttachmentName(f[1])) return bad(lines[i]);
+      for (const Attachment& a : m.attachments) {
+        if (a.name == f[1]) return CorruptError("MANIFEST repeats attachment '" + a.name + "'");
+      }
+      m.attachments.push_back({std::string(f[1]), *checksum});
+    } else if (key == "source_hash" || key == "nodes_checksum" || key == "shadow_map") {
       auto v = f.size() == 2 ? ParseHex(f[1]) : std::nullopt;
       if (!v) return bad(lines[i]);
-      (key == "source_hash" ? m.source.hash : m.nodes_checksum) = *v;
+      (key == "source_hash"      ? m.source.hash
+       : key == "nodes_checksum" ? m.nodes_checksum
+                                 : m.shadow_checksum) = *v;
     } else if (key == "source_bytes" || key == "page_bytes") {
       auto v = f.size() == 2 ? integer(f[1], 0, INT64_MAX) : std::nullopt;
       if (!v) return bad(lines[i]);
@@ -349,6 +412,13 @@ Result<CacheManifest> CacheManifest::Parse(std::string_view text) {
       m.mapping.value_range.size() != static_cast<size_t>(channels)) {
     return CorruptError("MANIFEST has value maps or ranges for another channel count");
   }
+  if (m.state == State::kCheckpoint && (seen["generation"] == 0 || seen["shadow_map"] == 0)) {
+    return CorruptError("MANIFEST of a checkpoint lacks 'generation' or 'shadow_map'");
+  }
+  if (m.state == State::kComplete &&
+      (seen["generation"] != 0 || seen["shadow_map"] != 0 || !m.attachments.empty())) {
+    return CorruptError("MANIFEST of a complete cache has checkpoint keys");
+  }
   for (volume::ValueMap& map : m.mapping.value_maps) map.file_type = info.dtype;
   return m;
 }
@@ -379,18 +449,13 @@ OctreeCache::~OctreeCache() {
   store_.reset();
 }
 
-Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
-    const fs::path& dir, const SourceIdentity& source, const CacheParams& params,
-    uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive) {
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec) return IoError(dir.string() + ": cannot create the cache directory: " + ec.message());
-  std::unique_ptr<OctreeCache> cache(new OctreeCache());
-  cache->dir_ = dir;
-  // Shared first: enough to reuse a complete cache alongside other readers; made exclusive below
-  // only to rebuild.
-  OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kShared));
+struct OctreeCache::Layout {
+  BrickGeometry geometry;
+  OctreeOptions options;
+  uint64_t page_bytes = 0;
+};
 
+Result<OctreeCache::Layout> OctreeCache::LayoutFor(const CacheParams& params) {
   OctreeOptions options;
   options.brick_size = params.brick_size;
   options.bytes_per_sample =
@@ -402,21 +467,37 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
                              params.brick_size, params.info.channel_count(),
                              options.bytes_per_sample}));
   const uint64_t page_bytes = PageBytesFor(geometry.brick_bytes());
-  // Construction pins a few pages at once (a brick and its neighbours' aprons): a budget of fewer
-  // pages could wait forever, so refuse it up front.
-  if (ram_bytes < kMinPages * page_bytes) {
-    return ResourceExhaustedError("a RAM budget of " + std::to_string(ram_bytes >> 20) +
-                                  " MiB for brick pages holds fewer than " +
-                                  std::to_string(kMinPages) + " pages of " +
-                                  std::to_string(page_bytes >> 10) +
-                                  " KiB; give more RAM (--ram-mb) or use smaller bricks (--brick)");
-  }
+  return Layout{std::move(geometry), std::move(options), page_bytes};
+}
+
+Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
+    const fs::path& dir, const SourceIdentity& source, const CacheParams& params,
+    uint64_t ram_bytes, const std::function<Result<ValueMapping>()>& derive) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return IoError(dir.string() + ": cannot create the cache directory: " + ec.message());
+  std::unique_ptr<OctreeCache> cache(new OctreeCache());
+  cache->dir_ = dir;
+  // Shared first: enough to reuse a complete cache alongside other readers; made exclusive below
+  // only to rebuild.
+  OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kShared));
+  OCTO_ASSIGN_OR_RETURN(Layout layout, LayoutFor(params));
+  OctreeOptions& options = layout.options;
+  const uint64_t page_bytes = layout.page_bytes;
+  OCTO_RETURN_IF_ERROR(CheckBudget(ram_bytes, page_bytes));
 
   // 1. A complete, matching cache is reused as it is.
   const fs::path manifest_path = dir / kManifestName;
   auto manifest_text = ReadSmallFile(manifest_path, kMaxManifestBytes);
   if (manifest_text.ok()) {
     auto manifest = CacheManifest::Parse(*manifest_text);
+    if (manifest.ok() && manifest->state == CacheManifest::State::kCheckpoint) {
+      // The only copy of an unfinished stream: neither served nor cleared.
+      return FailedPreconditionError(
+          dir.string() +
+          ": the cache holds the checkpoint of a stream that has not finished (not a complete "
+          "cache); it opens once the stream is finished");
+    }
     if (!manifest.ok()) {
       cache->rebuild_reason_ = "unreadable manifest: " + manifest.status().message();
     } else if (!(manifest->source == source)) {
@@ -470,7 +551,7 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
       paging::OpenFilePageStore(dir / kPoolName, page_bytes, paging::OpenMode::kCreateTruncate));
   cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
   OCTO_ASSIGN_OR_RETURN(cache->octree_,
-                        Octree::Create(geometry, options, cache->page_cache_.get()));
+                        Octree::Create(layout.geometry, options, cache->page_cache_.get()));
   cache->manifest_.source = source;
   cache->manifest_.params = params;
   cache->manifest_.mapping = std::move(mapping);
@@ -481,16 +562,239 @@ Result<std::unique_ptr<OctreeCache>> OctreeCache::Open(
 Status OctreeCache::Commit() {
   // Bricks first: the node table refers to them, and the MANIFEST to both.
   OCTO_RETURN_IF_ERROR(octree_->Flush());
+  if (shadow_ != nullptr && shadow_->shadowed_pages() != 0) {
+    // Those pages are not in the pool yet; a Checkpoint puts them there safely.
+    return FailedPreconditionError(dir_.string() +
+                                   ": the build changed since its last checkpoint; checkpoint "
+                                   "it before committing");
+  }
   std::ostringstream nodes;
   OCTO_RETURN_IF_ERROR(octree_->Save(nodes));
   const std::string table = nodes.str();
   OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kNodesName, table));
-  manifest_.nodes_checksum = Fnv1a64(table);
-  OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kManifestName, manifest_.Serialize()));
+  CacheManifest complete = manifest_;
+  complete.state = CacheManifest::State::kComplete;
+  complete.generation = 0;
+  complete.attachments.clear();
+  complete.nodes_checksum = Fnv1a64(table);
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kManifestName, complete.Serialize()));
+  manifest_ = std::move(complete);
   std::error_code ec;
   fs::remove(dir_ / kBuildingName, ec);
+  if (shadow_ != nullptr) {
+    // A complete cache is never resumed: the checkpoint's files have no use any more.
+    fs::remove(dir_ / kShadowName, ec);
+    fs::remove(dir_ / kDirtyName, ec);
+    RemoveCheckpointFiles(0);
+  }
   OCTO_RETURN_IF_ERROR(SyncDirectory(dir_));
   return lock_ ? lock_->MakeShared() : Status::Ok();
+}
+
+void OctreeCache::RemoveCheckpointFiles(uint64_t keep) {
+  std::error_code ec;
+  std::vector<fs::path> stale;
+  for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!name.starts_with(kCheckpointPrefix)) continue;
+    const std::string_view rest = std::string_view(name).substr(sizeof kCheckpointPrefix - 1);
+    const std::optional<int64_t> generation = ParseInt64(rest.substr(0, rest.find('.')));
+    if (name.ends_with(".tmp") || !generation || static_cast<uint64_t>(*generation) != keep) {
+      stale.push_back(it->path());
+    }
+  }
+  for (const fs::path& path : stale) fs::remove(path, ec);
+}
+
+Result<std::unique_ptr<OctreeCache>> OctreeCache::CreateResumable(const fs::path& dir,
+                                                                  const SourceIdentity& source,
+                                                                  const CacheParams& params,
+                                                                  uint64_t ram_bytes,
+                                                                  ValueMapping mapping) {
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return IoError(dir.string() + ": cannot create the cache directory: " + ec.message());
+  OCTO_ASSIGN_OR_RETURN(Layout layout, LayoutFor(params));
+  OCTO_RETURN_IF_ERROR(CheckBudget(ram_bytes, layout.page_bytes));
+  if (mapping.value_maps.size() != static_cast<size_t>(params.info.channel_count()) ||
+      mapping.value_range.size() != static_cast<size_t>(params.info.channel_count())) {
+    return InternalError("value mapping for the wrong number of channels");
+  }
+  std::unique_ptr<OctreeCache> cache(new OctreeCache());
+  cache->dir_ = dir;
+  OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kExclusive));
+  // From here on the directory is ours alone: no stale MANIFEST may describe the new files.
+  for (const char* name : {kManifestName, kNodesName, kShadowName, kDirtyName}) {
+    fs::remove(dir / name, ec);
+  }
+  cache->RemoveCheckpointFiles(0);
+  OCTO_RETURN_IF_ERROR(SyncDirectory(dir));
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(dir / kBuildingName, "building\n"));
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<paging::PageStore> pool,
+                        paging::OpenFilePageStore(dir / kPoolName, layout.page_bytes,
+                                                  paging::OpenMode::kCreateTruncate));
+  OCTO_ASSIGN_OR_RETURN(std::unique_ptr<paging::ShadowPageStore> shadow,
+                        paging::ShadowPageStore::Create(std::move(pool), dir / kShadowName, 0));
+  cache->shadow_ = shadow.get();
+  cache->store_ = std::move(shadow);
+  cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
+  layout.options.value_range = mapping.value_range;
+  OCTO_ASSIGN_OR_RETURN(cache->octree_,
+                        Octree::Create(layout.geometry, layout.options, cache->page_cache_.get()));
+  cache->manifest_.state = CacheManifest::State::kCheckpoint;
+  cache->manifest_.source = source;
+  cache->manifest_.params = params;
+  cache->manifest_.mapping = std::move(mapping);
+  cache->manifest_.page_bytes = layout.page_bytes;
+  return cache;
+}
+
+Status OctreeCache::Checkpoint(const CheckpointAttachments& attachments) {
+  if (shadow_ == nullptr || manifest_.state != CacheManifest::State::kCheckpoint) {
+    return FailedPreconditionError(dir_.string() + ": not a resumable build; no checkpoint");
+  }
+  const uint64_t generation = manifest_.generation + 1;
+  CacheManifest next = manifest_;
+  next.generation = generation;
+  next.attachments.clear();
+  // 1. The pool and its shadow as the node table will describe them, durable.
+  OCTO_RETURN_IF_ERROR(octree_->Flush());
+  // 2. The node table, the owner's files and the shadow's map, under this generation's names.
+  std::ostringstream nodes;
+  OCTO_RETURN_IF_ERROR(octree_->Save(nodes));
+  const std::string table = nodes.str();
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(CheckpointFile(dir_, generation, "nodes"), table));
+  next.nodes_checksum = Fnv1a64(table);
+  for (const auto& [name, bytes] : attachments) {
+    if (!IsAttachmentName(name)) {
+      return InvalidArgumentError("checkpoint attachment name '" + Printable(name) + "'");
+    }
+    OCTO_RETURN_IF_ERROR(WriteFileDurably(CheckpointFile(dir_, generation, name), bytes));
+    next.attachments.push_back({name, Fnv1a64(bytes)});
+  }
+  const std::string map = shadow_->Freeze().Serialize();
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(CheckpointFile(dir_, generation, "shadow"), map));
+  next.shadow_checksum = Fnv1a64(map);
+  // 3. The commit point: from now on Resume finds this generation.
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kManifestName, next.Serialize()));
+  manifest_ = std::move(next);
+  // 4. The shadowed pages into the pool; from now on every page written so far is protected.
+  if (Status copied = shadow_->Apply(generation); !copied.ok()) {
+    std::lock_guard<std::mutex> lock(dirty_mu_);
+    copy_failed_ = true;
+    return copied.WithContext(dir_.string() + ": after checkpoint " + std::to_string(generation));
+  }
+  {
+    std::lock_guard<std::mutex> lock(dirty_mu_);
+    dirty_ = false;
+  }
+  std::error_code ec;
+  fs::remove(dir_ / kDirtyName, ec);  // Stale anyway: it names the previous generation.
+  RemoveCheckpointFiles(generation);
+  return SyncDirectory(dir_);
+}
+
+Status OctreeCache::MarkDirty() {
+  std::lock_guard<std::mutex> lock(dirty_mu_);
+  if (copy_failed_) {
+    return FailedPreconditionError(dir_.string() +
+                                   ": a checkpoint could not be completed; the cache takes no "
+                                   "changes until it is reopened");
+  }
+  if (dirty_ || shadow_ == nullptr) return Status::Ok();
+  OCTO_RETURN_IF_ERROR(WriteFileDurably(dir_ / kDirtyName, DirtyText(manifest_.generation)));
+  dirty_ = true;
+  return Status::Ok();
+}
+
+Result<CacheContents> OctreeCache::Inspect(const fs::path& dir) {
+  OCTO_ASSIGN_OR_RETURN(std::string text, ReadSmallFile(dir / kManifestName, kMaxManifestBytes));
+  auto manifest = CacheManifest::Parse(text);
+  if (!manifest.ok()) {
+    return CorruptError((dir / kManifestName).string() + ": " + manifest.status().message());
+  }
+  CacheContents contents;
+  if (manifest->state == CacheManifest::State::kCheckpoint) {
+    for (const CacheManifest::Attachment& a : manifest->attachments) {
+      OCTO_ASSIGN_OR_RETURN(std::string bytes,
+                            ReadCheckpointFile(CheckpointFile(dir, manifest->generation, a.name),
+                                               a.checksum, a.name));
+      contents.attachments.emplace(a.name, std::move(bytes));
+    }
+    // The shadow map too: a checkpoint that cannot be resumed is reported now.
+    OCTO_RETURN_IF_ERROR(ReadCheckpointFile(CheckpointFile(dir, manifest->generation, "shadow"),
+                                            manifest->shadow_checksum, "shadow map")
+                             .status());
+    auto dirty = ReadSmallFile(dir / kDirtyName, 256);
+    contents.unclean = dirty.ok() && *dirty == DirtyText(manifest->generation);
+  }
+  contents.manifest = std::move(*manifest);
+  return contents;
+}
+
+Result<ResumedCache> OctreeCache::Resume(const fs::path& dir, uint64_t ram_bytes) {
+  std::unique_ptr<OctreeCache> cache(new OctreeCache());
+  cache->dir_ = dir;
+  OCTO_ASSIGN_OR_RETURN(cache->lock_, CacheLock::Acquire(dir, CacheLock::Mode::kExclusive));
+  auto inspected = Inspect(dir);
+  if (!inspected.ok()) {
+    if (inspected.status().code() != StatusCode::kNotFound) return inspected.status();
+    return CorruptError(dir.string() + ": no checkpoint to resume (no MANIFEST)");
+  }
+  CacheContents& contents = *inspected;
+  const CacheManifest& manifest = contents.manifest;
+  if (manifest.state == CacheManifest::State::kComplete) {
+    return FailedPreconditionError(dir.string() + ": the cache is complete; nothing to resume");
+  }
+  OCTO_ASSIGN_OR_RETURN(Layout layout, LayoutFor(manifest.params));
+  if (layout.page_bytes != manifest.page_bytes) {
+    return CorruptError(dir.string() + ": MANIFEST page_bytes " +
+                        std::to_string(manifest.page_bytes) + " does not fit its brick size");
+  }
+  OCTO_RETURN_IF_ERROR(CheckBudget(ram_bytes, layout.page_bytes));
+  const fs::path nodes_path = CheckpointFile(dir, manifest.generation, "nodes");
+  OCTO_ASSIGN_OR_RETURN(std::string nodes,
+                        ReadCheckpointFile(nodes_path, manifest.nodes_checksum, "node table"));
+  const fs::path map_path = CheckpointFile(dir, manifest.generation, "shadow");
+  OCTO_ASSIGN_OR_RETURN(std::string map_bytes,
+                        ReadCheckpointFile(map_path, manifest.shadow_checksum, "shadow map"));
+  auto map = paging::ShadowMap::Parse(map_bytes);
+  if (!map.ok()) return map.status().WithContext(map_path.string());
+  auto pool = paging::OpenFilePageStore(dir / kPoolName, layout.page_bytes,
+                                        paging::OpenMode::kOpenExisting);
+  if (!pool.ok()) {
+    return CorruptError((dir / kPoolName).string() +
+                        ": the checkpoint's pool cannot be opened: " + pool.status().message());
+  }
+  // The pool exactly as the checkpoint left it: its copy finished (should a crash have cut it
+  // short), and what was written after it dropped.
+  const fs::path shadow_path = dir / kShadowName;
+  OCTO_RETURN_IF_ERROR(paging::ShadowPageStore::Recover(**pool, shadow_path, *map).status());
+  const uint64_t dropped =
+      paging::ShadowPageStore::PagesWrittenSince(shadow_path, manifest.generation);
+  OCTO_ASSIGN_OR_RETURN(
+      std::unique_ptr<paging::ShadowPageStore> shadow,
+      paging::ShadowPageStore::Create(std::move(*pool), shadow_path, manifest.generation));
+  cache->shadow_ = shadow.get();
+  cache->store_ = std::move(shadow);
+  cache->page_cache_ = std::make_unique<paging::PageCache>(cache->store_.get(), ram_bytes);
+  std::istringstream in(nodes);
+  auto octree = Octree::Load(in, cache->page_cache_.get());
+  if (!octree.ok()) {
+    return CorruptError(nodes_path.string() + ": " + octree.status().message());
+  }
+  cache->octree_ = std::move(*octree);
+  cache->manifest_ = manifest;
+  std::error_code ec;
+  fs::remove(dir / kDirtyName, ec);  // Reported below; the pool is the checkpoint's again.
+  cache->RemoveCheckpointFiles(manifest.generation);
+  OCTO_RETURN_IF_ERROR(SyncDirectory(dir));
+  ResumedCache resumed;
+  resumed.cache = std::move(cache);
+  resumed.attachments = std::move(contents.attachments);
+  resumed.unclean = contents.unclean || dropped > 0;
+  resumed.dropped_pages = dropped;
+  return resumed;
 }
 
 }  // namespace octoscope::octree

@@ -9,6 +9,12 @@ namespace octoscope::octree {
 
 Result<std::unique_ptr<SlabIngest>> SlabIngest::Create(Octree* tree, const IngestOptions& options) {
   if (tree == nullptr) return InvalidArgumentError("slab ingest: no octree");
+  const uint64_t planes = static_cast<uint64_t>(tree->geometry().volume_size()[2]) *
+                          static_cast<uint64_t>(tree->geometry().channels());
+  if (!options.inserted.empty() && options.inserted.size() != planes) {
+    return InvalidArgumentError("slab ingest: " + std::to_string(options.inserted.size()) +
+                                " inserted-plane flags for " + std::to_string(planes) + " planes");
+  }
   return std::unique_ptr<SlabIngest>(new SlabIngest(tree, options));
 }
 
@@ -23,6 +29,27 @@ SlabIngest::SlabIngest(Octree* tree, const IngestOptions& options)
       planes_(tree->geometry().volume_size()[2]) {
   layer_done_.assign(static_cast<size_t>((planes_ + depth_ - 1) / depth_), 0);
   progress_.planes_total = static_cast<uint64_t>(planes_) * static_cast<uint64_t>(channels_);
+  if (options_.inserted.empty()) return;
+  const uint64_t present = static_cast<uint64_t>(std::count_if(
+      options_.inserted.begin(), options_.inserted.end(), [](uint8_t f) { return f; }));
+  progress_.planes_received = present;
+  progress_.planes_inserted = present;
+  for (size_t index = 0; index < layer_done_.size(); ++index) {
+    const int64_t z0 = static_cast<int64_t>(index) * depth_, z1 = std::min(planes_, z0 + depth_);
+    bool all = true;
+    for (int c = 0; c < channels_ && all; ++c) {
+      for (int64_t z = z0; z < z1 && all; ++z) all = WasInserted(c, z);
+    }
+    if (all) {
+      layer_done_[index] = 1;
+      ++progress_.layers_inserted;
+    }
+  }
+}
+
+bool SlabIngest::WasInserted(int channel, int64_t z) const {
+  return !options_.inserted.empty() &&
+         options_.inserted[static_cast<size_t>(channel * planes_ + z)] != 0;
 }
 
 SlabIngest::~SlabIngest() = default;
@@ -58,6 +85,16 @@ Result<SlabIngest::Layer*> SlabIngest::LayerLocked(int64_t index,
   layer->state.assign(static_cast<size_t>(channels_ * layer->nz), PlaneState::kEmpty);
   layer->counted.assign(layer->state.size(), 0);
   layer->waiting = channels_ * layer->nz;
+  // Planes of a resumed build that the octree holds already: the layer waits for the others.
+  for (int c = 0; c < channels_; ++c) {
+    for (int64_t p = 0; p < layer->nz; ++p) {
+      if (!WasInserted(c, layer->z0 + p)) continue;
+      const size_t i = static_cast<size_t>(c * layer->nz + p);
+      layer->state[i] = PlaneState::kInserted;
+      layer->counted[i] = 3;
+      --layer->waiting;
+    }
+  }
   Layer* raw = layer.get();
   layers_.emplace(index, std::move(layer));
   return raw;

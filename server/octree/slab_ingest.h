@@ -50,6 +50,11 @@ struct IngestOptions {
   std::filesystem::path scratch_dir;
   // Threads for the octree's brick writes (not owned); null = the inserting thread alone.
   WorkerPool* workers = nullptr;
+  // Planes the octree holds already (a build resumed from a checkpoint): [channel * planes + z],
+  // planes = the volume's depth, non-zero = inserted. They count as received and inserted, and a
+  // brick layer is inserted once its OTHER planes have arrived; one of them sent again replaces
+  // it. Empty = none.
+  std::vector<uint8_t> inserted;
 };
 
 struct IngestProgress {
@@ -101,6 +106,8 @@ class SlabIngest {
   };
 
   SlabIngest(Octree* tree, const IngestOptions& options);
+  // Whether IngestOptions::inserted lists plane z of `channel`.
+  bool WasInserted(int channel, int64_t z) const;
   // The layer holding z, created on first use. REQUIRES: lock holds mu_.
   Result<Layer*> LayerLocked(int64_t index, std::unique_lock<std::mutex>& lock);
   // Copies planes [first, first + count) of the layer (layer-relative) of `channel` in.

@@ -2,7 +2,9 @@
 //   - a dataset as GET /api/datasets lists it (DatasetJson, DatasetListJson);
 //   - its histogram, GET /api/datasets/{id}/histogram (HistogramJson);
 //   - the body of POST /api/datasets creating a streaming dataset, and the sidecar JSON of a
-//     folder watched by `octoscope serve --watch` (ParseStreamRequest).
+//     folder watched by `octoscope serve --watch` (ParseStreamRequest);
+//   - a stream's record in the server's state folder, which brings it back after a restart
+//     (StreamRecordJson, ParseStreamRecord; docs/server.md "Stream records").
 // The types here are plain values filled by the dataset layer (protocol sits below it). Parsing
 // is strict: unknown keys, wrong types and out-of-range values are kInvalidArgument naming the
 // key; nothing throws out of these functions, whatever the input.
@@ -94,6 +96,34 @@ inline constexpr uint64_t kMaxStreamRequestBytes = 64 << 10;
 // `what` names the document in errors ("request body", the sidecar's path).
 Result<StreamRequest> ParseStreamRequest(std::string_view json_text, StreamRequestKind kind,
                                          std::string_view what);
+
+// A stream as its record keeps it (STATE_DIR/streams/ID.json): what it is, who created it, where
+// its cache is, and how it stands. What it received is in its cache, not here.
+struct StreamRecord {
+  static constexpr int kVersion = 1;
+  std::string id;  // [a-z0-9]{12}.
+  // Name (the dataset's, as listed), size, channels, dtype, spacing, channel names; index_base
+  // is not kept.
+  StreamRequest shape;
+  std::string creator;                     // Opaque; "" for streams the server made.
+  std::string watch;                       // The watched folder feeding it; "" for none.
+  std::string cache;                       // Its cache directory.
+  bool finished = false;                   // "state": "ready" (finished) or "streaming".
+  std::optional<uint64_t> missing_planes;  // Finished streams: planes that never arrived.
+  int64_t created_unix_ms = 0;             // When it was created (orders the list).
+  std::vector<std::string> warnings;       // Shown with the dataset (e.g. an unclean stop).
+};
+
+inline constexpr uint64_t kMaxStreamRecordBytes = 256 << 10;
+inline constexpr size_t kMaxStreamRecordWarnings = 16;
+
+// {"version": 1, "id", "name", "size", "channels", "dtype", "spacing", "channel_names",
+// "creator", "watch" (null or a path), "cache", "state" ("streaming" / "ready"),
+// "missing_planes" (null unless ready), "created_unix_ms", "warnings"}.
+std::string StreamRecordJson(const StreamRecord& record);
+// Strict: every key above is required, unknown keys, wrong types and out-of-range values are
+// kInvalidArgument naming the field (prefixed with `what`).
+Result<StreamRecord> ParseStreamRecord(std::string_view json_text, std::string_view what);
 
 // {"id": "<id>"}: the answer to POST /api/datasets.
 std::string CreatedJson(std::string_view id);

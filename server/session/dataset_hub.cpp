@@ -121,24 +121,31 @@ size_t DatasetHub::ReleaseIdle(Clock::time_point idle_since_before) {
   }
   if (victims.empty()) return 0;
   std::vector<std::shared_ptr<dataset::Dataset>> reopen;
+  size_t released = 0;
   for (Victim& v : victims) {
     // No view of it exists (no use): the render service drops its bricks, then the pages go.
     if (v.key != 0) renderer_->RemoveDataset(v.key);
-    v.dataset->Close();
+    // A stream still receiving slabs stays open (and is tried again after another timeout).
+    const bool closed = v.dataset->Release(options_.idle_timeout).ok();
     std::lock_guard<std::mutex> lock(mu_);
-    ++releases_;
     auto it = entries_.find(v.id);
     it->second.releasing = false;
     it->second.key = 0;
+    if (closed) {
+      ++releases_;
+      ++released;
+    }
     if (it->second.uses > 0) {
       reopen.push_back(v.dataset);  // A session came back meanwhile.
-    } else {
+    } else if (closed) {
       entries_.erase(it);
+    } else {
+      it->second.idle_since = Clock::now();
     }
   }
   for (const auto& dataset : reopen) (void)dataset->Open();
   if (options_.on_release) options_.on_release();
-  return victims.size();
+  return released;
 }
 
 void DatasetHub::ReleaseLoop(std::stop_token stop) {

@@ -6,11 +6,13 @@
 //
 // Release: the hub counts the DatasetUses of each dataset. With HubOptions::idle_timeout set, a
 // dataset no session has used for that long is released on the hub's own thread: removed from the
-// render service (its device bricks go back to the others) and closed (pages flushed, page cache
-// and octree freed), then HubOptions::on_release runs (the registry re-divides the RAM budget).
-// A later Use reopens it from its cache (no rebuild). A Use that arrives while the release runs
-// gets its DatasetUse at once; the dataset is reopened as soon as the close finished (render_key
-// is nullopt until then, as while a dataset loads).
+// render service (its device bricks go back to the others) and closed (Dataset::Release: pages
+// flushed, page cache and octree freed; an unfinished stream is checkpointed and suspended —
+// never finished — and resumes on its next slab), then HubOptions::on_release runs (the registry
+// re-divides the RAM budget). A stream that received a slab within idle_timeout is left open (and
+// tried again later). A later Use reopens a released dataset from its cache (no rebuild). A Use
+// that arrives while the release runs gets its DatasetUse at once; the dataset is reopened as soon
+// as the close finished (render_key is nullopt until then, as while a dataset loads).
 //
 // Thread safety: thread-safe. Use may be called from I/O threads: it never waits for disk.
 #ifndef OCTOSCOPE_SESSION_DATASET_HUB_H_
@@ -85,7 +87,8 @@ class DatasetHub {
   // Datasets released so far (their closes finished).
   uint64_t releases() const;
   // Releases now the datasets unused since `idle_since_before` or earlier (the release thread
-  // calls it with now - idle_timeout). Blocks while they are flushed. Returns how many.
+  // calls it with now - idle_timeout). Blocks while they are flushed. Returns how many were
+  // closed (a stream still receiving slabs is not).
   size_t ReleaseIdle(std::chrono::steady_clock::time_point idle_since_before);
 
  private:

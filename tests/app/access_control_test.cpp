@@ -20,19 +20,21 @@ using protocol::GrantRef;
 
 User MakeUser(std::string name, std::string token, std::vector<fs::path> folders,
               bool admin = false, std::string id = "") {
-  return User{std::move(name), std::move(token), std::move(folders), admin, std::nullopt,
-              std::move(id)};
+  return User{std::move(name), std::move(token), std::move(folders),
+              admin,           std::nullopt,     std::move(id)};
 }
 
 Principal UserPrincipal(std::string name, bool admin = false) {
   return Principal{Principal::Kind::kUser, std::move(name), admin, "", ""};
 }
 
-// A stream dataset of id `id` in `dir`, and the access control's finder knowing it alone.
+// A stream dataset of id `id` in `dir` created under `creator`, and the access control's finder
+// knowing it alone.
 std::shared_ptr<dataset::Dataset> StreamKnownTo(AccessControl& access, const fs::path& dir,
-                                                const std::string& id) {
+                                                const std::string& id, const GrantRef& creator) {
   dataset::StreamSpec spec;
   spec.id = id;
+  spec.creator = protocol::GrantRefText(creator);  // What the stream keeps (and its record).
   spec.size = {8, 8, 4};
   spec.cache_root = dir;
   auto stream = dataset::Dataset::CreateStream(spec);
@@ -85,9 +87,8 @@ TEST(AccessControlTest, TokensUsersExpiryAndHooks) {
   // A view link of a stream alice created (its maker's grant must cover its dataset).
   const fs::path dir = testing::MakeTempDir("access-hooks");
   const std::string stream_id = "dataset00002";
-  std::shared_ptr<dataset::Dataset> stream = StreamKnownTo(access, dir, stream_id);
+  std::shared_ptr<dataset::Dataset> stream = StreamKnownTo(access, dir, stream_id, by_alice);
   ASSERT_NE(stream, nullptr);
-  access.RecordCreator(stream_id, by_alice);
   const std::string view_id(22, 'v');
   access.SetViewLookup([&](std::string_view id) -> std::optional<ViewGrantInfo> {
     if (id != view_id) return std::nullopt;
@@ -134,10 +135,10 @@ TEST(AccessControlTest, GrantsHoldWhileTheirWholeChainHolds) {
   const fs::path dir = testing::MakeTempDir("grant-chains");
   AccessControl access({MakeUser("alice", "alice-token-0123456789", {"/srv/a"}, false, "ua")});
   const std::string stream_id = "dsa000000001";
-  std::shared_ptr<dataset::Dataset> stream = StreamKnownTo(access, dir, stream_id);
-  ASSERT_NE(stream, nullptr);
   // alice created the stream: her grant covers it.
-  access.RecordCreator(stream_id, GrantRef{GrantRef::Kind::kUser, "ua"});
+  std::shared_ptr<dataset::Dataset> stream =
+      StreamKnownTo(access, dir, stream_id, GrantRef{GrantRef::Kind::kUser, "ua"});
+  ASSERT_NE(stream, nullptr);
   std::map<std::string, ShareGrantInfo> shares = {
       {"sh1", ShareGrantInfo{"sh1", GrantRef{GrantRef::Kind::kUser, "ua"}, stream_id}}};
   const GrantRef ua{GrantRef::Kind::kUser, "ua"};
@@ -248,7 +249,7 @@ TEST(AccessControlTest, VisibilityOfDatasets) {
   EXPECT_FALSE(access.MayView(alice, *a2));
   EXPECT_TRUE(access.MayView(UserPrincipal("root", true), *a2));
   EXPECT_FALSE(access.MayView(UserPrincipal("carol"), *a));  // Not (any more) a user.
-  EXPECT_FALSE(access.MayView(Principal{}, *a));  // No credentials.
+  EXPECT_FALSE(access.MayView(Principal{}, *a));             // No credentials.
   // A share link of alice's session made for a2: it holds only while alice may see a2 (never).
   access.SetShareLookups(nullptr, [&](std::string_view) -> std::optional<ShareGrantInfo> {
     return ShareGrantInfo{"s1", GrantRef{GrantRef::Kind::kUser, "alice"}, a2->id()};

@@ -60,6 +60,11 @@ class ServeFixture : public ::testing::Test {
             ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::remove_all(dir_);
     fs::create_directories(dir_);
+    ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY, ServeArgs(), (dir_ / "server.log").string()))
+        << server_.error();
+  }
+  // The server's command line: a fresh cache and state folder of the test, then ExtraArgs().
+  std::vector<std::string> ServeArgs() const {
     std::vector<std::string> args = {"--port",      "0",
                                      "--cache",     (dir_ / "cache").string(),
                                      "--state-dir", (dir_ / "state").string(),
@@ -67,8 +72,16 @@ class ServeFixture : public ::testing::Test {
                                      "--ram-mb",    "256",
                                      "--device",    "cpu"};
     for (const std::string& a : ExtraArgs()) args.push_back(a);
-    ASSERT_TRUE(server_.Start(OCTOSCOPE_BINARY, args, (dir_ / "server.log").string()))
-        << server_.error();
+    return args;
+  }
+  // Stops the server (SIGTERM; it must exit 0) and starts it again with the same command line,
+  // cache and state folder.
+  bool Restart() {
+    EXPECT_EQ(server_.Stop(), 0);
+    const bool started =
+        server_.Start(OCTOSCOPE_BINARY, ServeArgs(), (dir_ / "server.log.restarted").string());
+    EXPECT_TRUE(started) << server_.error();
+    return started;
   }
   void TearDown() override {
     if (server_.running()) {

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "dataset/dataset.h"
+#include "dataset/stream_test_volume.h"
 #include "octree/voxel_reader.h"
 #include "volume/value_map.h"
 
@@ -20,52 +21,14 @@ namespace octoscope::dataset {
 namespace {
 
 namespace fs = std::filesystem;
-
-class DatasetStreamTest : public ::testing::Test {
- protected:
-  void SetUp() override {
-    root_ = fs::temp_directory_path() /
-            ("octoscope_dataset_test_" + std::to_string(::getpid()) + "_" +
-             ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::remove_all(root_);
-    fs::create_directories(root_);
-  }
-  void TearDown() override { fs::remove_all(root_); }
-  fs::path root_;
-};
-
-constexpr int64_t kX = 37, kY = 29, kZ = 23;
-constexpr int kChannels = 2;
-
-uint16_t Voxel(int c, int64_t x, int64_t y, int64_t z) {
-  // Smooth structure plus hash noise: neither homogeneous nor trivially compressible.
-  const uint32_t h = static_cast<uint32_t>((x * 73856093) ^ (y * 19349663) ^ (z * 83492791) ^ c);
-  return static_cast<uint16_t>(1000 * c + 20 * x + 7 * y + 3 * z + (h % 17));
-}
-
-std::vector<uint16_t> Planes(int c, int64_t z0, int64_t nz) {
-  std::vector<uint16_t> out;
-  for (int64_t z = z0; z < z0 + nz; ++z)
-    for (int64_t y = 0; y < kY; ++y)
-      for (int64_t x = 0; x < kX; ++x) out.push_back(Voxel(c, x, y, z));
-  return out;
-}
-
-std::span<const std::byte> Bytes(const std::vector<uint16_t>& v) {
-  return std::as_bytes(std::span<const uint16_t>(v));
-}
-
-StreamSpec Spec(const fs::path& root) {
-  StreamSpec spec;
-  spec.id = "abcdef012345";
-  spec.name = "test stream";
-  spec.size = {kX, kY, kZ};
-  spec.channels = kChannels;
-  spec.dtype = volume::DataType::kUint16;
-  spec.cache_root = root;
-  spec.ram_bytes = 64 << 20;
-  return spec;
-}
+using testing::Bytes;
+using testing::kChannels;
+using testing::kX;
+using testing::kY;
+using testing::kZ;
+using testing::Planes;
+using testing::Spec;
+using DatasetStreamTest = testing::StreamTestRoot;
 
 TEST_F(DatasetStreamTest, StreamedPlanesReadBackExactlyAndHistogramIsExact) {
   auto created = Dataset::CreateStream(Spec(root_));

@@ -1,10 +1,12 @@
 // FolderWatcher against files written the way an acquisition writes them: the sidecar first,
 // then plane files — one of them appearing truncated first (a writer still at work) and completed
-// later. Every plane must arrive exactly (read back from the octree) and the dataset finish.
+// later. Every plane must arrive exactly (read back from the octree) and the dataset finish; after
+// a restart the watcher goes on with the same stream.
 #include "dataset/folder_watcher.h"
 
 #include <gtest/gtest.h>
 
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -43,6 +45,27 @@ bool WaitFor(const std::function<bool()>& done, milliseconds timeout = milliseco
   return done();
 }
 
+// Every voxel of the dataset as WritePlane wrote it.
+void ExpectEveryVoxelAsWritten(const Dataset& dataset) {
+  octree::Octree* tree = dataset.octree();
+  ASSERT_NE(tree, nullptr);
+  std::vector<uint16_t> voxels(kW * kH * kZ);
+  for (int c = 0; c < kChannels; ++c) {
+    octree::Box box;
+    box.hi = {kW, kH, kZ};
+    ASSERT_TRUE(octree::ReadVoxels(*tree, c, box, voxels).ok());
+    int wrong = 0;
+    for (int z = 0; z < kZ; ++z) {
+      for (uint32_t y = 0; y < kH; ++y) {
+        for (uint32_t x = 0; x < kW; ++x) {
+          wrong += voxels[(z * kH + y) * kW + x] != Value(c, x, y, z);
+        }
+      }
+    }
+    EXPECT_EQ(wrong, 0) << "channel " << c;
+  }
+}
+
 TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   const fs::path dir = testing::MakeTempDir("folder-watcher");
   const fs::path watched = dir / "acquisition";
@@ -73,7 +96,8 @@ TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   ASSERT_TRUE(WritePlane(complete, 0, 1));
   std::ifstream in(complete, std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(in)), {});
-  std::ofstream(watched / "img_c1_z0002.tif", std::ios::binary) << bytes.substr(0, bytes.size() / 2);
+  std::ofstream(watched / "img_c1_z0002.tif", std::ios::binary)
+      << bytes.substr(0, bytes.size() / 2);
   for (int z = 0; z < kZ; ++z) {
     char name[40];
     std::snprintf(name, sizeof name, "img_c1_z%04d.tif", z + 1);
@@ -92,24 +116,7 @@ TEST(FolderWatcherTest, StreamsCompletePlanesOnlyAndFinishesTheAcquisition) {
   EXPECT_EQ((*watcher)->stats().planes_ingested, 8u);
   EXPECT_EQ((*watcher)->stats().bad_files, 0u);
 
-  // Every voxel as written.
-  octree::Octree* tree = dataset->octree();
-  ASSERT_NE(tree, nullptr);
-  std::vector<uint16_t> voxels(kW * kH * kZ);
-  for (int c = 0; c < kChannels; ++c) {
-    octree::Box box;
-    box.hi = {kW, kH, kZ};
-    ASSERT_TRUE(octree::ReadVoxels(*tree, c, box, voxels).ok());
-    int wrong = 0;
-    for (int z = 0; z < kZ; ++z) {
-      for (uint32_t y = 0; y < kH; ++y) {
-        for (uint32_t x = 0; x < kW; ++x) {
-          wrong += voxels[(z * kH + y) * kW + x] != Value(c, x, y, z);
-        }
-      }
-    }
-    EXPECT_EQ(wrong, 0) << "channel " << c;
-  }
+  ExpectEveryVoxelAsWritten(*dataset);
   watcher->reset();
   (*registry)->Close();
   fs::remove_all(dir);
@@ -141,6 +148,74 @@ TEST(FolderWatcherTest, BadFilesAreReportedAndSkipped) {
   // A good plane replacing a bad file is taken.
   ASSERT_TRUE(WritePlane(watched / "z0000.tif", 0, 0));
   ASSERT_TRUE(WaitFor([&] { return (*watcher)->stats().planes_ingested == 1; }));
+  watcher->reset();
+  (*registry)->Close();
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace octoscope::dataset
+
+namespace octoscope::dataset {
+namespace {
+
+// After a restart the watcher goes on with its folder's stream (found by the folder in the
+// stream records): planes received before are not read again, the others arrive, and the
+// acquisition finishes; an idle release of the stream meanwhile changes nothing.
+TEST(FolderWatcherTest, ARestartResumesTheFolderStreamAndSkipsPlanesReceived) {
+  const fs::path dir = testing::MakeTempDir("folder-watcher-restart");
+  const fs::path watched = dir / "acquisition";
+  fs::create_directories(watched);
+  RegistryOptions options;
+  options.cache_root = dir / "cache";
+  options.state_dir = dir / "state";
+  NullLogger logger;
+  WatchOptions watch;
+  watch.poll_interval = milliseconds(20);
+  watch.settle_time = milliseconds(100);
+  auto plane = [&](int c, int z) {
+    char name[40];
+    std::snprintf(name, sizeof name, "img_c%d_z%04d.tif", c + 1, z + 1);
+    return watched / name;
+  };
+  std::ofstream(watched / kWatchSidecarName)
+      << R"({"name":"run 2","size":[16,12,4],"channels":2,"dtype":"uint16","index_base":1})";
+  for (int c = 0; c < kChannels; ++c) {
+    for (int z = 0; z < 2; ++z) ASSERT_TRUE(WritePlane(plane(c, z), c, z));
+  }
+  std::string id;
+  {
+    auto registry = DatasetRegistry::Create(options);
+    ASSERT_TRUE(registry.ok()) << registry.status().ToString();
+    auto watcher = FolderWatcher::Start(registry->get(), watched, &logger, watch);
+    ASSERT_TRUE(watcher.ok());
+    ASSERT_TRUE(WaitFor([&] { return (*watcher)->stats().planes_ingested == 4; }));
+    id = (*watcher)->stats().dataset_id;
+    watcher->reset();
+    (*registry)->Close();  // The server stops.
+  }
+
+  auto registry = DatasetRegistry::Create(options);
+  ASSERT_TRUE(registry.ok()) << registry.status().ToString();
+  std::shared_ptr<Dataset> dataset = (*registry)->Find(id);
+  ASSERT_NE(dataset, nullptr);
+  EXPECT_EQ(dataset->status().planes_received, 4u);
+  EXPECT_EQ((*registry)->FindWatchedStream(watched), dataset);
+  auto watcher = FolderWatcher::Start(registry->get(), watched, &logger, watch);
+  ASSERT_TRUE(watcher.ok());
+  ASSERT_TRUE(WaitFor([&] { return (*watcher)->stats().dataset_id == id; }));
+  std::this_thread::sleep_for(milliseconds(300));
+  EXPECT_EQ((*watcher)->stats().planes_ingested, 0u);  // Nothing read again.
+  // Released as an idle dataset (suspended): the watcher goes on regardless.
+  ASSERT_TRUE(dataset->Release(milliseconds(0)).ok());
+  EXPECT_FALSE(dataset->status().open);
+  for (int c = 0; c < kChannels; ++c) {
+    for (int z = 2; z < kZ; ++z) ASSERT_TRUE(WritePlane(plane(c, z), c, z));
+  }
+  ASSERT_TRUE(WaitFor([&] { return dataset->status().state == DatasetState::kReady; }));
+  EXPECT_EQ((*watcher)->stats().planes_ingested, 4u);
+  EXPECT_EQ(dataset->status().missing_planes, uint64_t{0});
+  ExpectEveryVoxelAsWritten(*dataset);
   watcher->reset();
   (*registry)->Close();
   fs::remove_all(dir);

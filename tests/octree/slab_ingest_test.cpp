@@ -223,3 +223,52 @@ TEST_F(SlabIngestTest, ConcurrentProducersFlushersAndReaders) {
 
 }  // namespace
 }  // namespace octoscope::octree
+
+namespace octoscope::octree {
+namespace {
+
+// A resumed build: planes the tree holds already count as received and inserted, and a brick
+// layer they belong to is inserted as one layer once its other planes arrive.
+TEST_F(SlabIngestTest, PlanesInsertedBeforeAResumeCompleteTheirLayers) {
+  TreeFixture tree = NewTree();
+  std::vector<uint8_t> inserted(static_cast<size_t>(kChannels * size_[2]), 0);
+  // Before the "checkpoint": channel 0 of planes 0..5 (layer 0 whole, layer 1 in part), every
+  // channel of planes 16..18 (the last layer, z 16..18, complete).
+  for (int64_t z = 0; z < 6; ++z) inserted[static_cast<size_t>(z)] = 1;
+  for (int c = 0; c < kChannels; ++c) {
+    for (int64_t z = 16; z < 19; ++z) inserted[static_cast<size_t>(c * size_[2] + z)] = 1;
+  }
+  for (const Slab& s : {Slab{0, 0, 6}, Slab{0, 16, 3}, Slab{1, 16, 3}, Slab{2, 16, 3}}) {
+    const Box box{{0, 0, s.z0}, {size_[0], size_[1], s.z0 + s.nz}};
+    ASSERT_TRUE(testing::InsertBlock(*tree.tree, *src_, s.channel, box).ok());
+  }
+  IngestOptions options;
+  options.inserted = inserted;
+  auto ingest = SlabIngest::Create(tree.tree.get(), options);
+  ASSERT_TRUE(ingest.ok()) << ingest.status().ToString();
+  IngestProgress p = (*ingest)->progress();
+  EXPECT_EQ(p.planes_received, 6u + 9u);
+  EXPECT_EQ(p.planes_inserted, 6u + 9u);
+  EXPECT_EQ(p.layers_inserted, 1u);
+  // Channels 1 and 2 of layer 0 complete it: inserted at once, no Flush needed.
+  for (int c = 1; c < kChannels; ++c) ASSERT_TRUE(Add(**ingest, {c, 0, 4}).ok());
+  p = (*ingest)->progress();
+  EXPECT_EQ(p.layers_inserted, 2u);
+  EXPECT_EQ(p.planes_inserted, 6u + 9u + 8u);
+  EXPECT_EQ((*ingest)->pending_planes(), 0u);
+  // The rest, with a plane sent before the resume sent again (it replaces the old one).
+  for (int c = 0; c < kChannels; ++c) {
+    ASSERT_TRUE(Add(**ingest, {c, c == 0 ? 3 : 4, c == 0 ? 13 : 12}).ok());
+  }
+  EXPECT_TRUE((*ingest)->complete());
+  p = (*ingest)->progress();
+  EXPECT_EQ(p.planes_received, uint64_t{kChannels} * 19);
+  EXPECT_EQ(p.planes_inserted, uint64_t{kChannels} * 19);
+  ExpectSameTree(DumpTree(*tree.tree), DumpTree(*reference_.tree), "resumed ingest");
+  options.inserted.pop_back();
+  EXPECT_EQ(SlabIngest::Create(tree.tree.get(), options).status().code(),
+            StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace octoscope::octree

@@ -181,8 +181,113 @@ TEST(DatasetJsonTest, FuzzSeedsAreSafe) {
     for (StreamRequestKind kind : {StreamRequestKind::kApi, StreamRequestKind::kSidecar}) {
       (void)ParseStreamRequest(text, kind, entry.path().filename().string());
     }
+    auto record = ParseStreamRecord(text, entry.path().filename().string());
+    if (entry.path().filename() == "stream-record.json") {
+      EXPECT_TRUE(record.ok()) << record.status().ToString();  // A valid start for the fuzzer.
+    }
   }
-  EXPECT_GE(files, 2);
+  EXPECT_GE(files, 3);
+}
+
+}  // namespace
+}  // namespace octoscope::protocol
+
+namespace octoscope::protocol {
+namespace {
+
+StreamRecord SampleRecord() {
+  StreamRecord r;
+  r.id = "k3j4h5g6f7d8";
+  r.shape.name = "run 42 «ü»";
+  r.shape.size = {1024, 512, 77};
+  r.shape.channels = 2;
+  r.shape.dtype = volume::DataType::kInt16;
+  r.shape.spacing_um = {0.1, 0.30000000000000004, 2.5};
+  r.shape.channel_names = {"nuclei", ""};
+  r.creator = "alice";
+  r.watch = "/srv/acq/run42";
+  r.cache = "/var/cache/octoscope/k3j4h5g6f7d8";
+  r.finished = true;
+  r.missing_planes = 12;
+  r.created_unix_ms = 1767225600123;
+  r.warnings = {"the server stopped without checkpointing this stream"};
+  return r;
+}
+
+void ExpectSameRecord(const StreamRecord& a, const StreamRecord& b) {
+  EXPECT_EQ(a.id, b.id);
+  EXPECT_EQ(a.shape.name, b.shape.name);
+  EXPECT_EQ(a.shape.size, b.shape.size);
+  EXPECT_EQ(a.shape.channels, b.shape.channels);
+  EXPECT_EQ(a.shape.dtype, b.shape.dtype);
+  EXPECT_EQ(a.shape.spacing_um, b.shape.spacing_um);  // Exactly: the JSON round-trips doubles.
+  EXPECT_EQ(a.shape.channel_names, b.shape.channel_names);
+  EXPECT_EQ(a.creator, b.creator);
+  EXPECT_EQ(a.watch, b.watch);
+  EXPECT_EQ(a.cache, b.cache);
+  EXPECT_EQ(a.finished, b.finished);
+  EXPECT_EQ(a.missing_planes, b.missing_planes);
+  EXPECT_EQ(a.created_unix_ms, b.created_unix_ms);
+  EXPECT_EQ(a.warnings, b.warnings);
+}
+
+TEST(StreamRecordJsonTest, RoundTripsExactly) {
+  const StreamRecord record = SampleRecord();
+  auto parsed = ParseStreamRecord(StreamRecordJson(record), "record");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  ExpectSameRecord(*parsed, record);
+  StreamRecord streaming = SampleRecord();
+  streaming.finished = false;
+  streaming.missing_planes.reset();
+  streaming.watch.clear();
+  streaming.shape.channel_names.clear();
+  streaming.creator.clear();
+  const std::string text = StreamRecordJson(streaming);
+  EXPECT_NE(text.find(R"("watch":null)"), std::string::npos) << text;
+  EXPECT_NE(text.find(R"("state":"streaming")"), std::string::npos) << text;
+  parsed = ParseStreamRecord(text, "record");
+  ASSERT_TRUE(parsed.ok()) << parsed.status().ToString();
+  ExpectSameRecord(*parsed, streaming);
+}
+
+TEST(StreamRecordJsonTest, IsReadStrictly) {
+  const nlohmann::json good = nlohmann::json::parse(StreamRecordJson(SampleRecord()));
+  struct Bad {
+    const char* key;
+    nlohmann::json value;  // null: the key is removed.
+    const char* names;     // Text the message must contain.
+  };
+  const Bad bad[] = {
+      {"version", 2, "version"},
+      {"id", "DEMO", "id"},
+      {"id", "abc", "id"},
+      {"creator", nullptr, "creator"},
+      {"creator", 7, "creator"},
+      {"cache", "", "cache"},
+      {"state", "finished", "state"},
+      {"missing_planes", -1, "missing_planes"},
+      {"watch", "", "watch"},
+      {"warnings", "x", "warnings"},
+      {"size", {1, 1}, "size"},
+      {"channel_names", {"only one"}, "channel_names"},
+      {"extra", 1, "extra"},
+  };
+  for (const Bad& b : bad) {
+    nlohmann::json doc = good;
+    if (b.value.is_null()) {
+      doc.erase(b.key);
+    } else {
+      doc[b.key] = b.value;
+    }
+    auto r = ParseStreamRecord(doc.dump(), "streams/x.json");
+    ASSERT_FALSE(r.ok()) << doc.dump();
+    EXPECT_EQ(r.status().code(), StatusCode::kInvalidArgument) << doc.dump();
+    EXPECT_NE(r.status().message().find(b.names), std::string::npos) << r.status().ToString();
+    EXPECT_EQ(r.status().message().rfind("streams/x.json", 0), 0u) << r.status().ToString();
+  }
+  nlohmann::json streaming = good;
+  streaming["state"] = "streaming";  // Missing planes belong to finished streams only.
+  EXPECT_FALSE(ParseStreamRecord(streaming.dump(), "record").ok());
 }
 
 }  // namespace
